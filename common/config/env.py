@@ -1,0 +1,95 @@
+"""Schema of the `env` config group: the embedded LaneDrive simulator (Hydra structured config).
+
+The simulator takes these same fields as keyword arguments of ``gymnasium.make("LaneDrive-v0", ...)``.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field, fields
+
+
+@dataclass
+class DamageConfig:
+    """Lane-marking damage for robustness tests (all zero: pristine markings)."""
+
+    gap_fraction: float = 0.0
+    """Fraction of each lane marking removed in random 1-6 m gaps."""
+    fade_fraction: float = 0.0
+    """Fraction of each lane marking faded to 15-50% contrast in 3-15 m stretches."""
+    distractors_per_100m: float = 0.0
+    """Random white strokes painted on the road surface per 100 m of road."""
+
+
+@dataclass
+class VehicleConfig:
+    """Kinematic bicycle with a steering-rate limit, a speed lag and a lateral-grip limit."""
+
+    wheelbase: float = 2.6
+    """Distance between axles, m."""
+    max_steer: float = 0.5
+    """Steering angle at action +-1, rad."""
+    steer_rate: float = 1.5
+    """Fastest steering change, rad/s."""
+    v_max: float = 20.0
+    """Speed at target-speed action +1, m/s; action -1 asks for half of it."""
+    speed_lag: float = 1.0
+    """Time constant of the first-order lag from target speed to speed, s."""
+    max_lateral_accel: float = 8.0
+    """Grip limit; above it the car understeers (path curvature capped at a/v^2), m/s^2."""
+    dt: float = 0.1
+    """Control period, s (10 Hz, as the paper)."""
+
+
+@dataclass
+class EnvConfig:
+    """LaneDrive-v0: a lane-keeping car with a front camera on closed roads."""
+
+    id: str = "LaneDrive-v0"
+    """Gymnasium id of the simulator."""
+    track: str = "train"
+    """Road set sampled at reset: 'train', 'test', 'all', 'procedural', or one library name."""
+    direction: str = "random"
+    """Driving direction: 'ccw', 'cw' or 'random' (per episode)."""
+    lane_width: float = 6.0
+    """Distance between the two lane markings, m (alpha = +-1 on them)."""
+    max_steps: int = 1200
+    """Truncation horizon in steps (120 s at 10 Hz, as the paper)."""
+    random_start: bool = True
+    """Start at a random place on the lap with a small random offset; False starts at s=0, centred."""
+    lighting: bool = True
+    """Randomise brightness and contrast per episode."""
+    damage: DamageConfig = field(default_factory=DamageConfig)
+    """Lane-marking damage and distractors."""
+    vehicle: VehicleConfig = field(default_factory=VehicleConfig)
+    """Vehicle dynamics."""
+
+    @classmethod
+    def from_kwargs(cls, **kwargs) -> "EnvConfig":
+        """Build from plain keyword arguments (nested groups as dicts), refusing unknown names."""
+        known = {f.name for f in fields(cls)}
+        unknown = set(kwargs) - known
+        if unknown:
+            raise TypeError(f"unknown LaneDrive option(s) {sorted(unknown)}; known: {sorted(known)}")
+        damage = kwargs.pop("damage", None) or {}
+        vehicle = kwargs.pop("vehicle", None) or {}
+        cfg = cls(
+            damage=damage if isinstance(damage, DamageConfig) else DamageConfig(**dict(damage)),
+            vehicle=vehicle if isinstance(vehicle, VehicleConfig) else VehicleConfig(**dict(vehicle)),
+            **kwargs,
+        )
+        cfg.validate()
+        return cfg
+
+    def validate(self) -> None:
+        """Refuse a bad config with a message that names the field."""
+        if self.direction not in ("ccw", "cw", "random"):
+            raise ValueError(f"env.direction must be 'ccw', 'cw' or 'random', got {self.direction!r}")
+        if not 2.0 <= self.lane_width <= 12.0:
+            raise ValueError(f"env.lane_width must be in [2, 12] m, got {self.lane_width}")
+        if self.max_steps < 1:
+            raise ValueError(f"env.max_steps must be >= 1, got {self.max_steps}")
+        for name in ("gap_fraction", "fade_fraction"):
+            if not 0.0 <= getattr(self.damage, name) <= 1.0:
+                raise ValueError(f"env.damage.{name} must be in [0, 1], got {getattr(self.damage, name)}")
+        if self.damage.distractors_per_100m < 0:
+            raise ValueError("env.damage.distractors_per_100m must be >= 0")
