@@ -44,4 +44,4 @@ class Camera:
         gx = c * self._fwd - s * self._left + ox
         gy = s * self._fwd + c * self._left + oy
         for i, m in enumerate(maps):
-            out[i] = np.take(luts[i], m.lookup(gx[i], gy[i])).reshape(HEIGHT, WIDTH)
+            out[i] = luts[i].take(m.lookup(gx[i], gy[i])).reshape(HEIGHT, WIDTH)

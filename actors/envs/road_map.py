@@ -43,9 +43,9 @@ class RoadMap:
         ix = gx.astype(np.int32)
         iy = gy.astype(np.int32)
         rows, cols = self.table.shape
-        tile = np.take(self.table.ravel(), (iy >> TILE_BITS) * cols + (ix >> TILE_BITS), mode="clip")
+        tile = self.table.ravel().take((iy >> TILE_BITS) * cols + (ix >> TILE_BITS), mode="clip")
         flat = (tile << (2 * TILE_BITS)) | ((iy & (TILE - 1)) << TILE_BITS) | (ix & (TILE - 1))
-        return np.take(self.tiles.ravel(), flat, mode="clip")
+        return self.tiles.ravel().take(flat, mode="clip")
 
     def to_grid(self, x: np.ndarray, y: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         return (x - self.x0) / RES, (y - self.y0) / RES

@@ -32,7 +32,7 @@ def road_map(base_name: str, lane_width: float, damage: tuple) -> RoadMap:
     return build_road_map(get_track(base_name), lane_width, DamageConfig(*damage), zlib.crc32(base_name.encode()))
 
 
-@lru_cache(maxsize=96)
+@lru_cache(maxsize=256)
 def curvature_ahead(name: str) -> np.ndarray:
     return get_track(name).curvature_ahead(LOOKAHEAD_M)
 
@@ -79,30 +79,46 @@ class LaneDriveSim:
     def reset(self, i: int, rng: np.random.Generator, options: dict | None = None) -> None:
         """Start car `i` on a road chosen by `options['track']` or the configured track set."""
         options = options or {}
-        name = self._choose_track(rng, options)
-        track = get_track(name)
         damage = (self.cfg.damage.gap_fraction, self.cfg.damage.fade_fraction, self.cfg.damage.distractors_per_100m)
-        self.maps[i] = road_map(name.removesuffix("-r"), self.cfg.lane_width, damage)
-        self.ahead[i] = curvature_ahead(name)
+        if isinstance(options.get("track"), Track):  # a hand-made road, drawn just for this episode
+            track = options["track"]
+            self.maps[i] = build_road_map(track, self.cfg.lane_width, DamageConfig(*damage), 0)
+            self.ahead[i] = track.curvature_ahead(LOOKAHEAD_M)
+        else:
+            name = self._choose_track(rng, options)
+            track = get_track(name)
+            self.maps[i] = road_map(name.removesuffix("-r"), self.cfg.lane_width, damage)
+            self.ahead[i] = curvature_ahead(name)
         self.tracks[i] = track
         random_start = options.get("random_start", self.cfg.random_start)
-        k = int(rng.integers(len(track.xy))) if random_start else 0
+        s0 = rng.uniform(0, track.length) if random_start else 0.0
         offset = rng.uniform(-0.25, 0.25) * self.half if random_start else 0.0
         yaw = rng.uniform(-0.1, 0.1) if random_start else 0.0
-        h = track.heading[k]
-        self.x[i] = track.xy[k, 0] - math.sin(h) * offset
-        self.y[i] = track.xy[k, 1] + math.cos(h) * offset
-        self.theta[i] = h + yaw
         self.v[i] = 0.5 * self.cfg.vehicle.v_max  # the slowest target speed
         self.delta[i] = 0.0
-        self.idx[i] = k
-        self.travelled[i] = 0.0
         self.steps[i] = 0
         self.reward[i] = 0.0
         self.last_action[i] = (0.0, -1.0)
         self.luts[i] = _brightness_table(rng, self.cfg.lighting)
-        self.path[i] = [(self.x[i], self.y[i])]
+        self.place(i, s0, offset, yaw)
+
+    def place(self, i: int, s: float, lateral: float, yaw: float) -> None:
+        """Put car `i` at arclength `s` (m), `lateral` m left of the centre, heading `yaw` rad
+        left of the road; restarts its lap count, path and both camera frames there."""
+        track = self.tracks[i]
+        k = int(round(s / track.spacing)) % len(track.xy)
+        h = track.heading[k]
+        self.set_pose(i, track.xy[k, 0] - math.sin(h) * lateral, track.xy[k, 1] + math.cos(h) * lateral, h + yaw)
+
+    def set_pose(self, i: int, x: float, y: float, theta: float) -> None:
+        """Put car `i` at a world pose (m, m, rad); restarts its lap count, path and camera frames."""
+        self.x[i], self.y[i] = x, y
+        self.theta[i] = (theta + math.pi) % (2 * math.pi) - math.pi
+        d = self.tracks[i].xy - (x, y)
+        self.idx[i] = int(np.argmin(np.einsum("ij,ij->i", d, d)))
         self._locate(i)
+        self.travelled[i] = 0.0
+        self.path[i] = [(self.x[i], self.y[i])]
         self.camera.render([self.maps[i]], self.x[i : i + 1], self.y[i : i + 1], self.theta[i : i + 1], self.luts[i : i + 1], self.frames[i : i + 1, 0])
         self.frames[i, 1] = self.frames[i, 0]
 

@@ -181,7 +181,7 @@ def track_names(split: str) -> list[str]:
     return list(lib[split])
 
 
-@lru_cache(maxsize=64)
+@lru_cache(maxsize=256)  # both directions of every library road, plus procedural ones
 def get_track(name: str) -> Track:
     """A library track by name, or 'procedural:SEED'; a trailing '-r' drives it clockwise."""
     if name.endswith("-r"):
