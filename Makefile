@@ -1,0 +1,26 @@
+# The README's two commands. Each bootstraps .venv with python3 -m venv + pip, so pip takes the
+# pinned torch from the machine's local wheel store when it is there instead of downloading it.
+PYTHON ?= python3
+VENV := .venv
+PY := $(VENV)/bin/python
+STAMP := $(VENV)/.installed
+
+.PHONY: train test bench clean
+
+$(STAMP): pyproject.toml
+	test -x $(PY) || $(PYTHON) -m venv $(VENV)
+	$(PY) -m pip install --upgrade pip
+	$(PY) -m pip install -e '.[test]'
+	touch $(STAMP)
+
+train: $(STAMP)
+	$(PY) -m actors.demo
+
+test: $(STAMP)
+	$(PY) -m pytest -q
+
+bench: $(STAMP)
+	$(PY) bench/sim.py
+
+clean:
+	rm -rf $(VENV) *.egg-info
