@@ -1,0 +1,344 @@
+"""The wire format: every message that crosses Zenoh, encoded as a msgpack map.
+
+Schema (version `SCHEMA_VERSION`) is documented for outside clients in docs/wire.md.
+Every payload is one msgpack map `{"v": 1, "type": <str>, ...fields}`; arrays travel as
+`{"dtype": "<f4", "shape": [..], "data": <bin>}` (raw little-endian bytes, C order).
+Nothing is ever pickled. A TransitionChunk holds T consecutive steps of one episode of one
+env and sends each camera frame once: T+1 observations (current, previous) share T+2 frames.
+
+`decode` is strict: a total size limit, msgpack's max_*_len limits, the schema version, the
+exact set of fields, their types, array dtypes and shapes, finiteness. Every hostile input
+raises `WireError` (a ValueError) whose `kind` says which check failed; `encode` runs the
+same checks, so a sender never emits what a receiver would drop.
+"""
+
+from __future__ import annotations
+
+import logging
+from collections import Counter
+from dataclasses import dataclass, field
+from typing import Any, Union
+
+import msgpack
+import numpy as np
+
+from common import wire_checks as chk
+from common.wire_checks import KINDS, Limits, WireError
+
+__all__ = [
+    "SCHEMA_VERSION", "KINDS", "Limits", "WireError", "TransitionChunk", "EpisodeSummary",
+    "Weights", "TrackTable", "Control", "Message", "encode", "decode", "frames_from_images",
+    "RejectCounter",
+]
+
+log = logging.getLogger(__name__)
+
+SCHEMA_VERSION = 1
+DEFAULT_LIMITS = Limits()
+CONTROL_COMMANDS = ("stop", "pause", "resume")
+U8, F4, B1 = "|u1", "<f4", "|b1"
+WEIGHT_DTYPES = ("<f2", "<f4", "<f8")
+
+# msgpack raises these (all ValueError subclasses in msgpack 1.x, UnicodeDecodeError for bad str)
+_MSGPACK_ERRORS = (
+    msgpack.exceptions.ExtraData,
+    msgpack.exceptions.FormatError,
+    msgpack.exceptions.StackError,
+    msgpack.exceptions.UnpackException,
+    UnicodeDecodeError,
+    ValueError,
+    TypeError,
+)
+
+
+@dataclass(frozen=True, eq=False)
+class TransitionChunk:
+    """T consecutive steps of one episode of one env, each camera frame sent once.
+
+    Observation t (t = 0..T) is image (frames[t+1], frames[t]) = (current, previous), speed[t],
+    last_action[t]; step t goes from observation t to t+1 with action[t], reward[t],
+    terminated[t], truncated[t], and alpha[t], beta[t] from the info of that step (the
+    cumulants of the GVFs). Only the last step may be terminated or truncated.
+    """
+
+    actor: str
+    env: int
+    episode: int
+    seq: int
+    """Per-actor sequence number of this chunk (0, 1, 2, ...): gaps are lost chunks."""
+    policy_version: int
+    step0: int
+    """Episode step index of the chunk's first step."""
+    frames: np.ndarray  # (T+2, H, W) uint8
+    speed: np.ndarray  # (T+1, 1) float32
+    last_action: np.ndarray  # (T+1, 2) float32
+    action: np.ndarray  # (T, 2) float32
+    reward: np.ndarray  # (T,) float32
+    terminated: np.ndarray  # (T,) bool
+    truncated: np.ndarray  # (T,) bool
+    alpha: np.ndarray  # (T,) float32
+    beta: np.ndarray  # (T,) float32
+
+    @property
+    def num_steps(self) -> int:
+        return int(np.shape(self.action)[0])
+
+    def observations(self) -> np.ndarray:
+        """The T+1 stacked images (T+1, 2, H, W): [t, 0] current frame, [t, 1] previous frame."""
+        frames = np.asarray(self.frames)
+        return np.stack([frames[1:], frames[:-1]], axis=1)
+
+
+@dataclass(frozen=True)
+class EpisodeSummary:
+    """One finished episode, for priority track sampling and progress display."""
+
+    actor: str
+    env: int
+    episode: int
+    track: str
+    steps: int
+    """Steps survived (n_i of this track in priority track sampling)."""
+    episode_return: float
+    policy_version: int
+
+
+@dataclass(frozen=True, eq=False)
+class Weights:
+    """A version of the acting networks' parameters: name -> float array."""
+
+    version: int
+    tensors: dict[str, np.ndarray] = field(default_factory=dict)
+
+
+@dataclass(frozen=True)
+class TrackTable:
+    """The learner's global table of n_i (steps survived last time) per track."""
+
+    version: int
+    steps: dict[str, int] = field(default_factory=dict)
+
+
+@dataclass(frozen=True)
+class Control:
+    """A launcher command to every process of the run."""
+
+    command: str
+    """One of CONTROL_COMMANDS: 'stop', 'pause', 'resume'."""
+    reason: str = ""
+
+
+Message = Union[TransitionChunk, EpisodeSummary, Weights, TrackTable, Control]
+
+
+def frames_from_images(images: np.ndarray) -> np.ndarray:
+    """(T+1, 2, H, W) stacked observations -> the (T+2, H, W) distinct frames they share.
+
+    Raises ValueError if the observations are not consecutive (image[t+1][1] != image[t][0]).
+    """
+    images = np.asarray(images)
+    if images.ndim != 4 or images.shape[1] != 2:
+        raise ValueError(f"images must be (T+1, 2, H, W), got {images.shape}")
+    if not np.array_equal(images[1:, 1], images[:-1, 0]):
+        raise ValueError("observations are not consecutive: image[t+1][1] != image[t][0]")
+    return np.concatenate([images[:1, 1], images[:, 0]], axis=0)
+
+
+# --- to and from the msgpack map -------------------------------------------------------------
+
+def _array_map(value: Any, dtype: str) -> dict:
+    arr = np.ascontiguousarray(value, dtype=np.dtype(dtype))
+    return {"dtype": dtype, "shape": list(arr.shape), "data": memoryview(arr).cast("B")}
+
+
+_STEP_FIELDS = {  # name -> (dtype, number of rows relative to T, trailing shape)
+    "speed": (F4, 1, (1,)),
+    "last_action": (F4, 1, (2,)),
+    "action": (F4, 0, (2,)),
+    "reward": (F4, 0, ()),
+    "terminated": (B1, 0, ()),
+    "truncated": (B1, 0, ()),
+    "alpha": (F4, 0, ()),
+    "beta": (F4, 0, ()),
+}
+_CHUNK_SCALARS = ("actor", "env", "episode", "seq", "policy_version", "step0")
+_FIELDS = {
+    "transitions": frozenset(_CHUNK_SCALARS) | {"frames"} | set(_STEP_FIELDS),
+    "episode": frozenset({"actor", "env", "episode", "track", "steps", "return", "policy_version"}),
+    "weights": frozenset({"version", "tensors"}),
+    "tracks": frozenset({"version", "steps"}),
+    "control": frozenset({"command", "reason"}),
+}
+
+
+def _to_map(msg: Message) -> dict:
+    if isinstance(msg, TransitionChunk):
+        m = {name: getattr(msg, name) for name in _CHUNK_SCALARS}
+        m["frames"] = _array_map(msg.frames, U8)
+        for name, (dtype, _, _) in _STEP_FIELDS.items():
+            m[name] = _array_map(getattr(msg, name), dtype)
+        return {"v": SCHEMA_VERSION, "type": "transitions", **m}
+    if isinstance(msg, EpisodeSummary):
+        return {"v": SCHEMA_VERSION, "type": "episode", "actor": msg.actor, "env": msg.env,
+                "episode": msg.episode, "track": msg.track, "steps": msg.steps,
+                "return": float(msg.episode_return), "policy_version": msg.policy_version}
+    if isinstance(msg, Weights):
+        tensors = {}
+        for name, value in msg.tensors.items():
+            arr = np.asarray(value)
+            # keep the float width; any other dtype goes out as-is and is refused as 'dtype'
+            tensors[name] = _array_map(arr, arr.dtype.newbyteorder("<").str)
+        return {"v": SCHEMA_VERSION, "type": "weights", "version": msg.version, "tensors": tensors}
+    if isinstance(msg, TrackTable):
+        return {"v": SCHEMA_VERSION, "type": "tracks", "version": msg.version, "steps": dict(msg.steps)}
+    if isinstance(msg, Control):
+        return {"v": SCHEMA_VERSION, "type": "control", "command": msg.command, "reason": msg.reason}
+    raise TypeError(f"not a wire message: {type(msg).__name__}")
+
+
+def _chunk_from_map(m: dict, limits: Limits) -> TransitionChunk:
+    scalars = dict(
+        actor=chk.name(m, "actor"),
+        env=chk.integer(m, "env", hi=2**31 - 1),
+        episode=chk.integer(m, "episode"),
+        seq=chk.integer(m, "seq"),
+        policy_version=chk.integer(m, "policy_version"),
+        step0=chk.integer(m, "step0"),
+    )
+    action = chk.array(m, "action", F4, (None, 2))
+    steps = action.shape[0]
+    if not 1 <= steps <= limits.max_steps:
+        raise WireError("shape", f"a chunk holds 1..{limits.max_steps} steps, got {steps}")
+    frame_shape = limits.frame_shape or (None, None)
+    frames = chk.array(m, "frames", U8, (steps + 2, *frame_shape))
+    if 0 in frames.shape:
+        raise WireError("shape", f"empty frames {frames.shape}")
+    arrays = {"action": action}
+    for name, (dtype, extra_rows, tail) in _STEP_FIELDS.items():
+        if name != "action":
+            arrays[name] = chk.array(m, name, dtype, (steps + extra_rows, *tail))
+    ends = arrays["terminated"][:-1].any() or arrays["truncated"][:-1].any()
+    if ends:
+        raise WireError("value", "only the last step of a chunk may be terminated or truncated")
+    return TransitionChunk(frames=frames, **scalars, **arrays)
+
+
+def _weights_from_map(m: dict, limits: Limits) -> Weights:
+    tensors_map = chk.field(m, "tensors", dict)
+    if len(tensors_map) > limits.max_tensors:
+        raise WireError("size", f"{len(tensors_map)} tensors > {limits.max_tensors}")
+    tensors = {}
+    for name, spec in tensors_map.items():
+        chk.text(name, "tensor name", 256, allow_empty=False)
+        tensors[name] = chk.array({name: spec}, name, WEIGHT_DTYPES, None)
+    return Weights(version=chk.integer(m, "version"), tensors=tensors)
+
+
+def _tracks_from_map(m: dict, limits: Limits) -> TrackTable:
+    steps_map = chk.field(m, "steps", dict)
+    if len(steps_map) > limits.max_tracks:
+        raise WireError("size", f"{len(steps_map)} tracks > {limits.max_tracks}")
+    steps = {}
+    for track in steps_map:
+        chk.text(track, "track name", 256, allow_empty=False)
+        steps[track] = chk.integer(steps_map, track)
+    return TrackTable(version=chk.integer(m, "version"), steps=steps)
+
+
+def _from_map(m: Any, limits: Limits, expect: type | None) -> Message:
+    if not isinstance(m, dict):
+        raise WireError("schema", f"a message is a map, got {type(m).__name__}")
+    version = m.get("v")
+    if type(version) is not int or version != SCHEMA_VERSION:
+        raise WireError("version", f"schema version {version!r}, this side speaks {SCHEMA_VERSION}")
+    kind = m.get("type")
+    if not isinstance(kind, str) or kind not in _FIELDS:
+        raise WireError("schema", f"unknown message type {kind!r}")
+    keys = set(m) - {"v", "type"}
+    if keys != _FIELDS[kind]:
+        missing, extra = sorted(_FIELDS[kind] - keys), sorted(keys - _FIELDS[kind])
+        raise WireError("schema", f"{kind}: missing fields {missing}, unknown fields {extra}")
+    if kind == "transitions":
+        msg: Message = _chunk_from_map(m, limits)
+    elif kind == "episode":
+        msg = EpisodeSummary(
+            actor=chk.name(m, "actor"), env=chk.integer(m, "env", hi=2**31 - 1),
+            episode=chk.integer(m, "episode"),
+            track=chk.text(chk.field(m, "track", str), "track", 256, allow_empty=False),
+            steps=chk.integer(m, "steps"), episode_return=chk.real(m, "return"),
+            policy_version=chk.integer(m, "policy_version"))
+    elif kind == "weights":
+        msg = _weights_from_map(m, limits)
+    elif kind == "tracks":
+        msg = _tracks_from_map(m, limits)
+    else:
+        command = chk.field(m, "command", str)
+        if command not in CONTROL_COMMANDS:
+            raise WireError("value", f"control command {command!r} not in {CONTROL_COMMANDS}")
+        msg = Control(command=command, reason=chk.text(chk.field(m, "reason", str), "reason", 1024))
+    if expect is not None and not isinstance(msg, expect):
+        raise WireError("schema", f"expected {expect.__name__}, got {type(msg).__name__}")
+    return msg
+
+
+# --- public entry points --------------------------------------------------------------------
+
+def encode(msg: Message, limits: Limits = DEFAULT_LIMITS) -> bytes:
+    """Message -> msgpack bytes; raises WireError if a receiver with `limits` would reject it."""
+    wire_map = _to_map(msg)
+    _from_map(wire_map, limits, None)
+    payload = msgpack.packb(wire_map, use_bin_type=True)
+    if len(payload) > limits.max_bytes:
+        raise WireError("size", f"{len(payload)} bytes > limit {limits.max_bytes}")
+    return payload
+
+
+def decode(payload: bytes | bytearray | memoryview, limits: Limits = DEFAULT_LIMITS,
+           expect: type | None = None) -> Message:
+    """msgpack bytes -> Message, or WireError for anything that is not a valid message.
+
+    Arrays of the result are read-only views of `payload`'s decoded buffers (copy to keep
+    a writable array). `expect` (a message class) rejects other message types as 'schema'.
+    """
+    if not isinstance(payload, (bytes, bytearray, memoryview)):
+        raise WireError("decode", f"payload must be bytes, got {type(payload).__name__}")
+    if len(payload) > limits.max_bytes:
+        raise WireError("size", f"{len(payload)} bytes > limit {limits.max_bytes}")
+    try:
+        wire_map = msgpack.unpackb(payload, **chk.unpack_options(limits))
+    except _MSGPACK_ERRORS as exc:
+        # msgpack reports its max_*_len limits as ValueError("... exceeds max_..._len(...)")
+        kind = "size" if "exceeds max_" in str(exc) else "decode"
+        raise WireError(kind, f"msgpack: {type(exc).__name__}: {exc}") from None
+    return _from_map(wire_map, limits, expect)
+
+
+class RejectCounter:
+    """Counts payloads refused by `decode`, per WireError kind, and logs the first of each kind.
+
+    A receiver's loop: `msg = rejects.decode(r.payload, expect=TransitionChunk, key=r.key)`;
+    None means counted and dropped. `counts` feeds the receiver's metrics.
+    """
+
+    def __init__(self, limits: Limits = DEFAULT_LIMITS, logger: logging.Logger | None = None) -> None:
+        self.limits = limits
+        self.counts: Counter[str] = Counter()
+        self._log = logger or log
+
+    @property
+    def total(self) -> int:
+        return sum(self.counts.values())
+
+    def reject(self, err: WireError, key: str = "") -> None:
+        self.counts[err.kind] += 1
+        if self.counts[err.kind] == 1:
+            # once per kind: a hostile or broken sender must not flood the log
+            self._log.warning("dropped a bad message on %r (first of kind %r): %s", key, err.kind, err)
+
+    def decode(self, payload: bytes, expect: type | None = None, key: str = "") -> Message | None:
+        """`decode(payload)`, or None after counting and (once per kind) logging the refusal."""
+        try:
+            return decode(payload, self.limits, expect)
+        except WireError as err:
+            self.reject(err, key)
+            return None
