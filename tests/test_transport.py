@@ -1,0 +1,336 @@
+"""Transport: the bounded inbox, the in-process transport, and real Zenoh on 127.0.0.1.
+
+The Zenoh tests run a router in a 'spawn' child process (forking after zenoh init hangs)
+and clients in this process; every session is closed and every process joined in `finally`.
+Waits poll with generous deadlines so that a failure never hangs; no test asserts a timing.
+"""
+
+from __future__ import annotations
+
+import json
+import multiprocessing as mp
+import socket
+import subprocess
+import sys
+import textwrap
+import threading
+import time
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from common.config.transport import TransportConfig
+from common.inbox import BoundedInbox
+from common.inproc_transport import Bus, InprocTransport
+from common.keys import Keys, key_matches
+from common.transport import Transport, make_transport
+from common.wire import Control, TransitionChunk, Weights, WireError, decode, encode
+
+REPO = Path(__file__).resolve().parents[1]
+CTX = mp.get_context("spawn")
+
+
+def wait_for(predicate, timeout: float = 10.0, interval: float = 0.02) -> bool:
+    """Poll `predicate` until true or `timeout` passes (a bound against hanging, not a timing)."""
+    deadline = time.monotonic() + timeout
+    while time.monotonic() < deadline:
+        if predicate():
+            return True
+        time.sleep(interval)
+    return bool(predicate())
+
+
+def small_chunk(seq: int) -> TransitionChunk:
+    steps = 2
+    return TransitionChunk(
+        actor="a0", env=0, episode=1, seq=seq, policy_version=0, step0=2 * seq,
+        frames=np.full((steps + 2, 64, 128), seq % 256, np.uint8),
+        speed=np.zeros((steps + 1, 1)), last_action=np.zeros((steps + 1, 2)),
+        action=np.zeros((steps, 2)), reward=np.ones(steps), terminated=np.zeros(steps, bool),
+        truncated=np.zeros(steps, bool), alpha=np.zeros(steps), beta=np.zeros(steps))
+
+
+# --- inbox and keys ------------------------------------------------------------------------
+
+def test_inbox_drops_and_counts_when_full():
+    new = BoundedInbox(2)
+    assert [new.offer(i) for i in range(5)] == [True, True, False, False, False]
+    assert new.drain() == [0, 1] and (new.received, new.dropped) == (5, 3)
+    old = BoundedInbox(2, overflow="drop_old")
+    for i in range(5):
+        old.offer(i)
+    assert old.drain() == [3, 4] and old.dropped == 3
+
+
+def test_inbox_get_waits_and_close_wakes():
+    inbox = BoundedInbox(4)
+    assert inbox.get(timeout=0.01) is None
+    threading.Timer(0.05, inbox.offer, args=("x",)).start()
+    assert inbox.get(timeout=10) == "x"
+    threading.Timer(0.05, inbox.close).start()
+    assert inbox.get() is None and not inbox.offer("late") and inbox.dropped == 1
+
+
+def test_keys_and_matching():
+    keys = Keys("r1")
+    assert keys.transitions("a7") == "gvf/r1/transitions/a7"
+    assert key_matches(keys.all_transitions, keys.transitions("a7"))
+    assert not key_matches(keys.all_transitions, keys.episodes("a7"))
+    assert key_matches(keys.all_alive(), keys.alive("actor", "a1"))
+    assert key_matches(keys.all_alive("actor"), keys.alive("actor", "a1"))
+    assert not key_matches(keys.all_alive("learner"), keys.alive("actor", "a1"))
+    assert key_matches("a/**", "a") and not key_matches("a/*", "a")
+    for bad in ("a/b", "*", "", "a b", "$x", ".."):
+        with pytest.raises(ValueError):
+            keys.transitions(bad)
+    assert len(keys.routes()) == 6
+
+
+# --- in-process transport ------------------------------------------------------------------
+
+def test_inproc_pub_sub_fetch_and_liveliness():
+    bus = Bus()
+    keys = Keys("t")
+    cfg = TransportConfig(backend="inproc")
+    with make_transport(cfg, bus) as learner, make_transport(cfg, bus) as actor:
+        assert isinstance(learner, Transport)
+        chunks = learner.subscribe(keys.all_transitions, capacity=8)
+        other = learner.subscribe(keys.all_episodes)
+        pub = actor.publisher(keys.transitions("a0"))
+        for seq in range(3):
+            pub.put(encode(small_chunk(seq)))
+        got = chunks.drain()
+        assert [decode(r.payload).seq for r in got] == [0, 1, 2] and len(other) == 0
+        assert {r.key for r in got} == {keys.transitions("a0")}
+
+        server = learner.serve_latest(keys.weights)
+        assert actor.fetch(keys.weights) is None
+        server.update(encode(Weights(5, {"w": np.ones(2, np.float32)})))
+        assert decode(actor.fetch(keys.weights)).version == 5 and server.answered == 1
+
+        watcher = learner.watch_alive(keys.all_alive("actor"))
+        token = actor.declare_alive(keys.alive("actor", "a0"))
+        assert watcher.alive() == {keys.alive("actor", "a0")}
+        token.close()
+        assert watcher.alive() == frozenset()
+        actor.declare_alive(keys.alive("actor", "a1"))
+    # closing the actor's transport withdrew its token and its subscriptions
+    assert bus.alive_keys(keys.all_alive()) == set() and chunks.closed
+
+
+def test_inproc_full_inbox_counts_drops_and_size_limit():
+    cfg = TransportConfig(backend="inproc", max_message_size=1000)
+    with InprocTransport(cfg) as t:
+        sub = t.subscribe("k/*", capacity=3)
+        latest = t.subscribe("k/*", capacity=1, overflow="drop_old")
+        pub = t.publisher("k/x")
+        for i in range(10):
+            pub.put(bytes([i]))
+        assert len(sub) == 3 and sub.dropped == 7 and sub.received == 10
+        assert latest.drain()[0].payload == bytes([9])
+        with pytest.raises(WireError) as info:
+            pub.put(b"x" * 1001)
+        assert info.value.kind == "size"
+    with pytest.raises(RuntimeError):
+        t.subscribe("k/*")
+
+
+def test_make_transport_rejects_unknown_backend():
+    with pytest.raises(ValueError):
+        make_transport(TransportConfig(backend="carrier-pigeon"))
+
+
+# --- real Zenoh ----------------------------------------------------------------------------
+
+def free_port() -> int:
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
+
+
+def client_cfg(port: int, run: str, **kw) -> TransportConfig:
+    return TransportConfig(run=run, mode="client", connect=[f"tcp/127.0.0.1:{port}"],
+                           connect_timeout_s=5.0, **kw)
+
+
+def _run_router(cfg: TransportConfig, ready) -> None:
+    from common.zenoh_transport import run_router
+
+    run_router(cfg, ready=ready)
+
+
+def _hold_token(cfg: TransportConfig, key: str, ready) -> None:
+    from common.zenoh_transport import ZenohTransport
+
+    with ZenohTransport(cfg) as t:
+        t.declare_alive(key)
+        ready.set()
+        time.sleep(60)
+
+
+@pytest.fixture(scope="module")
+def router_port():
+    """A Zenoh router on 127.0.0.1 in a spawned process, stopped by SIGTERM at the end."""
+    pytest.importorskip("zenoh")
+    proc = None
+    try:
+        for _ in range(3):  # the free port can be taken between probe and bind
+            port = free_port()
+            ready = CTX.Event()
+            cfg = TransportConfig(router_listen=[f"tcp/127.0.0.1:{port}"])
+            proc = CTX.Process(target=_run_router, args=(cfg, ready), daemon=True)
+            proc.start()
+            if ready.wait(30):
+                break
+            proc.kill()
+            proc.join()
+        else:
+            pytest.fail("the router did not start")
+        yield port
+        proc.terminate()
+        proc.join(10)
+        assert proc.exitcode == 0, "the router did not stop cleanly on SIGTERM"
+    finally:
+        if proc is not None and proc.is_alive():
+            proc.kill()
+            proc.join()
+
+
+def test_zenoh_config_from_transport_config():
+    from common.zenoh_transport import zenoh_config
+
+    cfg = TransportConfig(mode="peer", listen=["tcp/127.0.0.1:0"], max_message_size=12345,
+                          zenoh_overrides={"transport/link/tx/lease": "3000"})
+    conf = zenoh_config(cfg)
+
+    def get(path):
+        return json.loads(conf.get_json(path))
+
+    assert get("mode") == "peer"
+    assert get("listen/endpoints") == ["tcp/127.0.0.1:0"]
+    assert get("scouting/multicast/enabled") is False
+    assert get("transport/link/rx/max_message_size") == 12345
+    assert get("transport/shared_memory/enabled") is False
+    assert get("transport/link/tx/lease") == 3000
+    with pytest.raises(ValueError):
+        zenoh_config(TransportConfig(mode="satellite"))
+
+
+def test_zenoh_pub_sub_through_router(router_port):
+    from common.zenoh_transport import ZenohTransport
+
+    keys = Keys("pubsub")
+    cfg = client_cfg(router_port, "pubsub")
+    with ZenohTransport(cfg) as learner, ZenohTransport(cfg) as actor:
+        assert isinstance(learner, Transport)
+        chunks = learner.subscribe(keys.all_transitions, capacity=64)
+        pub = actor.publisher(keys.transitions("a0"))
+        control = learner.subscribe(keys.control)
+        launcher_pub = actor.publisher(keys.control)
+        # a subscription reaches the publisher through the router: wait until a probe arrives
+        assert wait_for(lambda: (launcher_pub.put(encode(Control("pause"))), len(control) > 0)[1])
+        for seq in range(20):
+            pub.put(encode(small_chunk(seq)))
+        assert wait_for(lambda: len(chunks) >= 20)
+        got = [decode(r.payload, expect=TransitionChunk) for r in chunks.drain()]
+        assert [c.seq for c in got] == list(range(20)) and chunks.dropped == 0
+        assert int(got[7].frames[0, 0, 0]) == 7
+        with pytest.raises(WireError) as info:
+            pub.put(b"x" * (cfg.max_message_size + 1))
+        assert info.value.kind == "size"
+
+
+def test_zenoh_full_inbox_counts_drops(router_port):
+    from common.zenoh_transport import ZenohTransport
+
+    keys = Keys("drops")
+    cfg = client_cfg(router_port, "drops")
+    with ZenohTransport(cfg) as learner, ZenohTransport(cfg) as actor:
+        sub = learner.subscribe(keys.all_episodes, capacity=4)
+        probe = learner.subscribe(keys.control)
+        pub, probe_pub = actor.publisher(keys.episodes("a0")), actor.publisher(keys.control)
+        # declared after `sub` on the same link: once a probe arrives, the router knows `sub` too
+        assert wait_for(lambda: (probe_pub.put(b"probe"), len(probe) > 0)[1])
+        for i in range(50):
+            pub.put(bytes([i]))
+        assert wait_for(lambda: sub.received >= 50)
+        assert sub.received == 50 and len(sub) == 4 and sub.dropped == 46
+        assert [r.payload for r in sub.drain()] == [bytes([i]) for i in range(4)]
+
+
+def test_zenoh_queryable_answers_latest_weights(router_port):
+    from common.zenoh_transport import ZenohTransport
+
+    keys = Keys("query")
+    cfg = client_cfg(router_port, "query")
+    with ZenohTransport(cfg) as learner, ZenohTransport(cfg) as actor:
+        assert actor.fetch(keys.weights, timeout=1.0) is None  # nobody serves yet
+        server = learner.serve_latest(keys.weights)
+        payload = encode(Weights(3, {"pi.w": np.arange(6, dtype=np.float32).reshape(2, 3)}))
+        server.update(payload)
+        assert wait_for(lambda: actor.fetch(keys.weights, timeout=1.0) == payload)
+        assert decode(actor.fetch(keys.weights)).version == 3 and server.answered >= 2
+
+
+def test_zenoh_liveliness_sees_a_killed_process_go(router_port):
+    from common.zenoh_transport import ZenohTransport
+
+    keys = Keys("alive")
+    cfg = client_cfg(router_port, "alive")
+    key = keys.alive("actor", "a9")
+    ready = CTX.Event()
+    proc = CTX.Process(target=_hold_token, args=(cfg, key, ready), daemon=True)
+    try:
+        with ZenohTransport(cfg) as learner:
+            own = learner.declare_alive(keys.alive("learner", "main"))
+            watcher = learner.watch_alive(keys.all_alive("actor"))
+            proc.start()
+            assert ready.wait(30)
+            assert wait_for(lambda: key in watcher.alive())
+            assert learner.alive_now(keys.all_alive()) == {key, own.key}
+            proc.kill()
+            assert wait_for(lambda: key not in watcher.alive())
+            assert watcher.alive() == frozenset()
+    finally:
+        if proc.is_alive():
+            proc.kill()
+        if proc.pid is not None:
+            proc.join()
+
+
+def test_zenoh_peer_mode_without_router():
+    from common.zenoh_transport import ZenohTransport
+
+    port = free_port()
+    listener = TransportConfig(run="peers", mode="peer", listen=[f"tcp/127.0.0.1:{port}"], connect=[])
+    dialer = TransportConfig(run="peers", mode="peer", connect=[f"tcp/127.0.0.1:{port}"],
+                             connect_timeout_s=5.0)
+    with ZenohTransport(listener) as a, ZenohTransport(dialer) as b:
+        sub = a.subscribe("gvf/peers/control")
+        pub = b.publisher("gvf/peers/control")
+        assert wait_for(lambda: (pub.put(encode(Control("stop"))), len(sub) > 0)[1])
+        assert decode(sub.get(timeout=1).payload) == Control("stop")
+
+
+def test_zenoh_client_without_router_raises_connection_error():
+    from common.zenoh_transport import ZenohTransport
+
+    with pytest.raises(ConnectionError):
+        ZenohTransport(TransportConfig(mode="client", connect=[f"tcp/127.0.0.1:{free_port()}"],
+                                       connect_timeout_s=0))
+
+
+def test_unclosed_session_does_not_hang_the_interpreter():
+    script = textwrap.dedent("""
+        from common.config.transport import TransportConfig
+        from common.zenoh_transport import ZenohTransport
+        t = ZenohTransport(TransportConfig(mode="peer", listen=[], connect=[]))
+        t.subscribe("gvf/x/transitions/*"); t.serve_latest("gvf/x/weights")
+        t.watch_alive("gvf/x/alive/**"); t.declare_alive("gvf/x/alive/actor/a")
+        print("leaving without close", flush=True)
+    """)
+    done = subprocess.run([sys.executable, "-c", script], cwd=REPO, capture_output=True,
+                          text=True, timeout=60)
+    assert done.returncode == 0, done.stderr
+    assert "leaving without close" in done.stdout
