@@ -177,3 +177,20 @@ def test_non_finite_action_is_refused():
     env.reset(seed=0)
     with pytest.raises(ValueError, match="finite"):
         env.step(np.array([np.nan, 0.0]))
+
+
+def test_vector_env_asks_the_track_chooser_at_every_reset():
+    asked = []
+
+    def choose(i):
+        asked.append(i)
+        return "brook"
+
+    envs = LaneDriveVectorEnv(2, track_chooser=choose, direction="ccw", random_start=False)
+    _, info = envs.reset(seed=0)
+    assert asked == [0, 1] and list(info["track"]) == ["brook", "brook"]
+    for _ in range(100):
+        _, _, term, _, _ = envs.step(np.array([[1.0, 1.0], [0.0, -1.0]], np.float32))
+        if term[0]:
+            break
+    assert asked == [0, 1, 0]

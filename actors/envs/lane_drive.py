@@ -10,7 +10,7 @@ curvature_ahead (max |1/R| in the next 40 m), lane_half_width, steps.
 
 from __future__ import annotations
 
-from typing import Any
+from typing import Any, Callable
 
 import gymnasium as gym
 import numpy as np
@@ -80,8 +80,10 @@ class LaneDriveVectorEnv(VectorEnv):
 
     metadata = {"render_modes": ["rgb_array"], "render_fps": 10, "autoreset_mode": AutoresetMode.SAME_STEP}
 
-    def __init__(self, num_envs: int, render_mode: str | None = None, **kwargs: Any) -> None:
+    def __init__(self, num_envs: int, render_mode: str | None = None, track_chooser: Callable[[int], str] | None = None, **kwargs: Any) -> None:
+        """`track_chooser(i)`, if given, names the road for car i at each of its resets (priority track sampling)."""
         self.cfg = EnvConfig.from_kwargs(**kwargs)
+        self.track_chooser = track_chooser
         self.num_envs = num_envs
         self.render_mode = render_mode
         self.sim = LaneDriveSim(self.cfg, num_envs)
@@ -96,7 +98,7 @@ class LaneDriveVectorEnv(VectorEnv):
             seeds = seed if isinstance(seed, list) else [seed + i for i in range(self.num_envs)]
             self._rngs = [np.random.default_rng(s) for s in seeds]
         for i in range(self.num_envs):
-            self.sim.reset(i, self._rngs[i], options)
+            self._reset_car(i, options)
         return self.sim.observation(), self._infos()
 
     def step(self, actions):
@@ -111,9 +113,14 @@ class LaneDriveVectorEnv(VectorEnv):
             infos["final_info"] = {k: v.copy() for k, v in infos.items() if not k.startswith("_") and k != "final_obs"}
             infos["_final_info"] = done.copy()
             for i in np.flatnonzero(done):
-                self.sim.reset(int(i), self._rngs[i])
+                self._reset_car(int(i), None)
             infos.update(self._infos())
         return self.sim.observation(), reward, terminated, truncated, infos
+
+    def _reset_car(self, i: int, options: dict | None) -> None:
+        if self.track_chooser is not None and not (options or {}).get("track"):
+            options = {**(options or {}), "track": self.track_chooser(i)}
+        self.sim.reset(i, self._rngs[i], options)
 
     def _infos(self) -> dict[str, np.ndarray]:
         per = [self.sim.info(i) for i in range(self.num_envs)]
