@@ -4,6 +4,8 @@ from __future__ import annotations
 
 import logging
 import random
+import re
+from pathlib import Path
 
 import msgpack
 import numpy as np
@@ -332,3 +334,12 @@ def test_reject_counter_counts_and_logs_once_per_kind(caplog):
         assert isinstance(rejects.decode(encode(VALID[4])), Control)
     assert rejects.counts == {"decode": 3, "version": 1} and rejects.total == 4
     assert len([r for r in caplog.records if "first of kind" in r.getMessage()]) == 2
+
+
+def test_docs_example_is_a_valid_chunk():
+    text = (Path(__file__).resolve().parents[1] / "docs" / "wire.md").read_text()
+    example = re.search(r"## Example.*?```python\n(.*?)```", text, re.S).group(1)
+    scope: dict = {}
+    exec(compile(example, "docs/wire.md", "exec"), scope)
+    chunk = decode(scope["payload"], expect=TransitionChunk)
+    assert chunk.actor == "ext-1" and chunk.num_steps == 2 and bool(chunk.terminated[-1])
