@@ -114,6 +114,9 @@ class InprocPublisher:
             raise WireError("size", f"{len(payload)} bytes > max_message_size {self._max}")
         self._bus.deliver(self.key, bytes(payload))
 
+    def close(self) -> None:
+        """Nothing to undeclare in-process; here for parity with the Zenoh publisher."""
+
 
 class InprocTransport:
     """`Transport` over a `Bus` in this process."""

@@ -145,7 +145,8 @@ def main(argv: list[str] | None = None) -> None:
     argv = sys.argv[1:] if argv is None else argv
     keys = Keys(argv[0] if argv else "default")
     for r in keys.routes():
-        print(f"{r.key:<42} {r.publisher:<34} -> {r.subscribers:<18} {r.message:<16} {r.congestion:<6} {r.note}")
+        print(f"{r.key:<42} {r.publisher:<30} -> {r.subscribers:<18} "
+              f"{r.message:<16} {r.congestion:<6} {r.note}")
 
 
 if __name__ == "__main__":

@@ -5,9 +5,9 @@
 and `make_transport(cfg)` picks one from `TransportConfig.backend`. Payloads are bytes (the
 messages of `common.wire`); keys come from `common.keys`. The loops it serves:
 
-    # actor
-    with make_transport(cfg) as t:
-        keys = Keys(cfg.run)
+    # actor (cfg: the run's config; cfg.transport a TransportConfig)
+    keys = Keys(cfg.run)
+    with make_transport(cfg.transport) as t:
         t.declare_alive(keys.alive("actor", name))
         weights_in = t.subscribe(keys.weights, capacity=1, overflow="drop_old")
         chunks_out = t.publisher(keys.transitions(name))          # congestion control BLOCK
@@ -17,14 +17,17 @@ messages of `common.wire`); keys come from `common.keys`. The loops it serves:
             ... step the envs ...; chunks_out.put(wire.encode(chunk))
 
     # learner
-    with make_transport(cfg) as t:
+    rejects = wire.RejectCounter()
+    with make_transport(cfg.transport) as t:
         chunks_in = t.subscribe(keys.all_transitions, capacity=4096)
         weights_out, weights_srv = t.publisher(keys.weights), t.serve_latest(keys.weights)
         actors = t.watch_alive(keys.all_alive("actor"))
         while running:
-            for r in chunks_in.drain(256): insert(wire.decode(r.payload, expect=TransitionChunk))
-            ... train ...; payload = wire.encode(weights); weights_out.put(payload); weights_srv.update(payload)
-            log(chunks_in.dropped, actors.alive())
+            for r in chunks_in.drain(256):           # bad payloads: counted, logged once per kind
+                if (chunk := rejects.decode(r.payload, expect=TransitionChunk, key=r.key)): insert(chunk)
+            ... train ...
+            payload = wire.encode(weights); weights_out.put(payload); weights_srv.update(payload)
+            log(chunks_in.dropped, rejects.counts, actors.alive())
 
 Receiving never runs user code on the transport's threads: a callback only pushes onto the
 receiver's own bounded inbox (`common.inbox`) and returns; the owner's loop drains it.
@@ -152,7 +155,13 @@ class Publisher(Protocol):
     key: str
 
     def put(self, payload: bytes) -> None:
-        """Send; with congestion control BLOCK waits for the network rather than dropping."""
+        """Send; with congestion control BLOCK waits for the network rather than dropping.
+
+        Raises WireError('size') for a payload over `max_message_size` (Zenoh would drop it silently).
+        """
+
+    def close(self) -> None:
+        """Undeclare (the transport's close does it too)."""
 
 
 @runtime_checkable

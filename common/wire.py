@@ -171,26 +171,32 @@ _FIELDS = {
 }
 
 
+def _int(value: Any) -> Any:
+    """numpy integers -> int for msgpack; anything else is left for the checks to refuse."""
+    return int(value) if isinstance(value, np.integer) else value
+
+
 def _to_map(msg: Message) -> dict:
     if isinstance(msg, TransitionChunk):
-        m = {name: getattr(msg, name) for name in _CHUNK_SCALARS}
+        m = {name: _int(getattr(msg, name)) for name in _CHUNK_SCALARS}
         m["frames"] = _array_map(msg.frames, U8)
         for name, (dtype, _, _) in _STEP_FIELDS.items():
             m[name] = _array_map(getattr(msg, name), dtype)
         return {"v": SCHEMA_VERSION, "type": "transitions", **m}
     if isinstance(msg, EpisodeSummary):
-        return {"v": SCHEMA_VERSION, "type": "episode", "actor": msg.actor, "env": msg.env,
-                "episode": msg.episode, "track": msg.track, "steps": msg.steps,
-                "return": float(msg.episode_return), "policy_version": msg.policy_version}
+        return {"v": SCHEMA_VERSION, "type": "episode", "actor": msg.actor, "env": _int(msg.env),
+                "episode": _int(msg.episode), "track": msg.track, "steps": _int(msg.steps),
+                "return": float(msg.episode_return), "policy_version": _int(msg.policy_version)}
     if isinstance(msg, Weights):
         tensors = {}
         for name, value in msg.tensors.items():
             arr = np.asarray(value)
             # keep the float width; any other dtype goes out as-is and is refused as 'dtype'
             tensors[name] = _array_map(arr, arr.dtype.newbyteorder("<").str)
-        return {"v": SCHEMA_VERSION, "type": "weights", "version": msg.version, "tensors": tensors}
+        return {"v": SCHEMA_VERSION, "type": "weights", "version": _int(msg.version), "tensors": tensors}
     if isinstance(msg, TrackTable):
-        return {"v": SCHEMA_VERSION, "type": "tracks", "version": msg.version, "steps": dict(msg.steps)}
+        steps = {track: _int(n) for track, n in msg.steps.items()}
+        return {"v": SCHEMA_VERSION, "type": "tracks", "version": _int(msg.version), "steps": steps}
     if isinstance(msg, Control):
         return {"v": SCHEMA_VERSION, "type": "control", "command": msg.command, "reason": msg.reason}
     raise TypeError(f"not a wire message: {type(msg).__name__}")

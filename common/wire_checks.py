@@ -123,7 +123,8 @@ def array(m: dict, key: str, dtype: str | tuple[str, ...], shape: tuple | None) 
         raise WireError("dtype", f"array {key!r} dtype {dt!r}, expected one of {allowed}")
     dims = spec["shape"]
     if not isinstance(dims, list) or any(type(d) is not int or not 0 <= d <= MAX_DIM for d in dims):
-        raise WireError("shape", f"array {key!r} shape must be a list of ints in [0, {MAX_DIM}], got {dims!r}")
+        raise WireError("shape", f"array {key!r} shape must be a list of ints in [0, {MAX_DIM}], "
+                                 f"got {dims!r}")
     data = spec["data"]
     if not isinstance(data, (bytes, bytearray, memoryview)):
         raise WireError("schema", f"array {key!r} data must be bin, got {type(data).__name__}")

@@ -39,7 +39,7 @@ QUERY_BACKLOG = 64
 
 def zenoh_config(cfg: TransportConfig, *, mode: str | None = None, listen: list[str] | None = None,
                  connect: list[str] | None = None) -> zenoh.Config:
-    """The zenoh.Config of `cfg` (file first, then fields, then overrides); mode/listen/connect overridable."""
+    """The zenoh.Config of `cfg`: its file, then its fields (mode/listen/connect overridable), overrides."""
     mode = mode or cfg.mode
     if mode not in MODES:
         raise ValueError(f"zenoh mode must be one of {MODES}, got {mode!r}")
@@ -124,7 +124,8 @@ class ZenohTransport:
             self.session = zenoh.open(zenoh_config(cfg))
         except zenoh.ZError as exc:
             # callers retry on ConnectionError without importing zenoh
-            raise ConnectionError(f"cannot open a zenoh session ({cfg.mode}, connect={cfg.connect}): {exc}") from exc
+            raise ConnectionError(
+                f"cannot open a zenoh session ({cfg.mode}, connect={cfg.connect}): {exc}") from exc
         self._owned: list = []
         self._closed = False
 
@@ -197,7 +198,11 @@ class ZenohTransport:
         owned, self._owned = self._owned, []
         try:
             for obj in reversed(owned):
-                obj.close()
+                try:
+                    obj.close()
+                except zenoh.ZError as exc:
+                    # keep closing the rest: one failed undeclare must not leak the session
+                    log.warning("closing %s failed: %s", type(obj).__name__, exc)
         finally:
             self.session.close()
 
@@ -219,17 +224,19 @@ def run_router(cfg: TransportConfig, stop: Any = None, ready: Any = None) -> Non
 
     `ready` (an Event, e.g. a multiprocessing one) is set once the router listens.
     """
-    stop = stop if stop is not None else threading.Event()
+    # the handler only sets a thread Event: setting a multiprocessing Event from a handler
+    # that interrupted that same Event's wait can deadlock
+    signalled = threading.Event()
     previous = {}
     if threading.current_thread() is threading.main_thread():
         for sig in (signal.SIGINT, signal.SIGTERM):
-            previous[sig] = signal.signal(sig, lambda *_: stop.set())
+            previous[sig] = signal.signal(sig, lambda *_: signalled.set())
     try:
         with open_router(cfg) as session:
             log.info("zenoh router %s listening on %s", session.zid(), cfg.router_listen)
             if ready is not None:
                 ready.set()
-            while not stop.wait(0.5):
+            while not signalled.wait(0.2) and not (stop is not None and stop.is_set()):
                 pass
     finally:
         for sig, handler in previous.items():

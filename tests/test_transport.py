@@ -149,9 +149,8 @@ def free_port() -> int:
         return s.getsockname()[1]
 
 
-def client_cfg(port: int, run: str, **kw) -> TransportConfig:
-    return TransportConfig(run=run, mode="client", connect=[f"tcp/127.0.0.1:{port}"],
-                           connect_timeout_s=5.0, **kw)
+def client_cfg(port: int, **kw) -> TransportConfig:
+    return TransportConfig(mode="client", connect=[f"tcp/127.0.0.1:{port}"], connect_timeout_s=5.0, **kw)
 
 
 def _run_router(cfg: TransportConfig, ready) -> None:
@@ -221,7 +220,7 @@ def test_zenoh_pub_sub_through_router(router_port):
     from common.zenoh_transport import ZenohTransport
 
     keys = Keys("pubsub")
-    cfg = client_cfg(router_port, "pubsub")
+    cfg = client_cfg(router_port)
     with ZenohTransport(cfg) as learner, ZenohTransport(cfg) as actor:
         assert isinstance(learner, Transport)
         chunks = learner.subscribe(keys.all_transitions, capacity=64)
@@ -245,7 +244,7 @@ def test_zenoh_full_inbox_counts_drops(router_port):
     from common.zenoh_transport import ZenohTransport
 
     keys = Keys("drops")
-    cfg = client_cfg(router_port, "drops")
+    cfg = client_cfg(router_port)
     with ZenohTransport(cfg) as learner, ZenohTransport(cfg) as actor:
         sub = learner.subscribe(keys.all_episodes, capacity=4)
         probe = learner.subscribe(keys.control)
@@ -263,7 +262,7 @@ def test_zenoh_queryable_answers_latest_weights(router_port):
     from common.zenoh_transport import ZenohTransport
 
     keys = Keys("query")
-    cfg = client_cfg(router_port, "query")
+    cfg = client_cfg(router_port)
     with ZenohTransport(cfg) as learner, ZenohTransport(cfg) as actor:
         assert actor.fetch(keys.weights, timeout=1.0) is None  # nobody serves yet
         server = learner.serve_latest(keys.weights)
@@ -277,7 +276,7 @@ def test_zenoh_liveliness_sees_a_killed_process_go(router_port):
     from common.zenoh_transport import ZenohTransport
 
     keys = Keys("alive")
-    cfg = client_cfg(router_port, "alive")
+    cfg = client_cfg(router_port)
     key = keys.alive("actor", "a9")
     ready = CTX.Event()
     proc = CTX.Process(target=_hold_token, args=(cfg, key, ready), daemon=True)
@@ -303,8 +302,8 @@ def test_zenoh_peer_mode_without_router():
     from common.zenoh_transport import ZenohTransport
 
     port = free_port()
-    listener = TransportConfig(run="peers", mode="peer", listen=[f"tcp/127.0.0.1:{port}"], connect=[])
-    dialer = TransportConfig(run="peers", mode="peer", connect=[f"tcp/127.0.0.1:{port}"],
+    listener = TransportConfig(mode="peer", listen=[f"tcp/127.0.0.1:{port}"], connect=[])
+    dialer = TransportConfig(mode="peer", connect=[f"tcp/127.0.0.1:{port}"],
                              connect_timeout_s=5.0)
     with ZenohTransport(listener) as a, ZenohTransport(dialer) as b:
         sub = a.subscribe("gvf/peers/control")

@@ -108,6 +108,18 @@ def test_each_frame_is_sent_once():
     assert size < 2 * (steps + 1) * frame * 0.55
 
 
+def test_encode_accepts_numpy_scalars_and_refuses_bad_fields():
+    chunk = make_chunk(env=np.int64(3), seq=np.uint32(9))
+    assert decode(encode(chunk)).env == 3
+    assert decode(encode(TrackTable(np.int64(1), {"oval": np.int32(4)}))).steps == {"oval": 4}
+    for bad, kind in [(make_chunk(seq=1.0), "schema"), (make_chunk(actor="a b"), "value"),
+                      (make_chunk(reward=np.full(8, np.nan)), "nonfinite"),
+                      (make_chunk(action=np.zeros((8, 3))), "shape")]:
+        with pytest.raises(WireError) as info:
+            encode(bad)
+        assert info.value.kind == kind
+
+
 def test_expect_rejects_other_types():
     assert_kind(encode(Control("stop")), "schema", expect=TransitionChunk)
 

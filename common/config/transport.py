@@ -21,9 +21,6 @@ class TransportConfig:
     backend: str = "zenoh"
     """'zenoh' (real network) or 'inproc' (every role in one process, for serial mode and tests)."""
 
-    run: str = "default"
-    """Run name: every key expression lives under `gvf/<run>/`, so runs sharing a router never mix."""
-
     mode: str = "client"
     """Zenoh mode of learner and actors: 'client' (talk through a router), 'peer' or 'router'."""
 
@@ -52,13 +49,13 @@ class TransportConfig:
     """Zenoh's implicit shared memory between processes on one host (a 16 MiB /dev/shm pool per session)."""
 
     inbox_capacity: int = 4096
-    """Default length of a subscriber's bounded queue; a sample arriving when it is full is counted and dropped."""
+    """Default length of a subscriber's bounded queue; a sample arriving when full is counted and dropped."""
 
     query_timeout_s: float = 2.0
     """How long a `fetch` (e.g. of the latest weights) waits for an answer."""
 
     zenoh_config_file: Optional[str] = None
-    """A Zenoh JSON5 config file read first (TLS certificates, auth, access control); the fields above override it."""
+    """Zenoh JSON5 config file read first (TLS certificates, auth, access control); fields above override it."""
 
     zenoh_overrides: Dict[str, str] = field(default_factory=dict)
-    """Extra Zenoh settings applied last: config path -> JSON5 value, e.g. {'transport/link/tx/lease': '3000'}."""
+    """Zenoh settings applied last: config path -> JSON5 value, e.g. {'transport/link/tx/lease': '3000'}."""
