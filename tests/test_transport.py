@@ -216,6 +216,36 @@ def test_zenoh_config_from_transport_config():
         zenoh_config(TransportConfig(mode="satellite"))
 
 
+def test_zenoh_config_file_then_fields(tmp_path):
+    from common.zenoh_transport import zenoh_config
+
+    path = tmp_path / "zenoh.json5"
+    path.write_text('{mode: "router", transport: {link: {tx: {lease: 4000}}}}')
+    conf = zenoh_config(TransportConfig(zenoh_config_file=str(path)))
+    assert json.loads(conf.get_json("transport/link/tx/lease")) == 4000
+    assert json.loads(conf.get_json("mode")) == "client"  # the fields win over the file
+
+
+def test_run_router_stops_on_its_event():
+    from common.zenoh_transport import ZenohTransport, run_router
+
+    port = free_port()
+    stop, ready = threading.Event(), threading.Event()
+    cfg = TransportConfig(router_listen=[f"tcp/127.0.0.1:{port}"])
+    thread = threading.Thread(target=run_router, args=(cfg, stop, ready), daemon=True)
+    thread.start()
+    try:
+        assert ready.wait(30)
+        with ZenohTransport(client_cfg(port)) as a, ZenohTransport(client_cfg(port)) as b:
+            sub = a.subscribe("gvf/r/control")
+            pub = b.publisher("gvf/r/control")
+            assert wait_for(lambda: (pub.put(encode(Control("resume"))), len(sub) > 0)[1])
+    finally:
+        stop.set()
+        thread.join(30)
+    assert not thread.is_alive()
+
+
 def test_zenoh_pub_sub_through_router(router_port):
     from common.zenoh_transport import ZenohTransport
 
