@@ -77,7 +77,7 @@ class LatestValue:
         self.answered = 0
         """Queries answered with a payload."""
         self.unanswered = 0
-        """Queries that came before any payload, or were dropped because too many waited."""
+        """Queries that came before any payload (or whose reply failed)."""
         self._on_close: Callable[[], None] | None = None
 
     def update(self, payload: bytes) -> None:

@@ -84,7 +84,10 @@ class ZenohPublisher:
 
 
 class ZenohLatestServer(LatestValue):
-    """A queryable answering with the latest payload; replies come from a server thread."""
+    """A queryable answering with the latest payload; replies come from a server thread.
+
+    `queries.dropped` counts queries refused because QUERY_BACKLOG were already waiting.
+    """
 
     def __init__(self, session: zenoh.Session, key: str) -> None:
         super().__init__(key)
