@@ -56,9 +56,10 @@ class TransitionChunk:
     """T consecutive steps of one episode of one env, each camera frame sent once.
 
     Observation t (t = 0..T) is image (frames[t+1], frames[t]) = (current, previous), speed[t],
-    last_action[t]; step t goes from observation t to t+1 with action[t], reward[t],
-    terminated[t], truncated[t], and alpha[t], beta[t] from the info of that step (the
-    cumulants of the GVFs). Only the last step may be terminated or truncated.
+    last_action[t], with the ground truth alpha[t], beta[t] of that observation; step t goes
+    from observation t to t+1 with action[t], reward[t], terminated[t], truncated[t]. The GVF
+    cumulants of step t are alpha[t+1], beta[t+1]; alpha[t], beta[t] are DDPG-LowDim's inputs.
+    Only the last step may be terminated or truncated.
     """
 
     actor: str
@@ -76,8 +77,8 @@ class TransitionChunk:
     reward: np.ndarray  # (T,) float32
     terminated: np.ndarray  # (T,) bool
     truncated: np.ndarray  # (T,) bool
-    alpha: np.ndarray  # (T,) float32
-    beta: np.ndarray  # (T,) float32
+    alpha: np.ndarray  # (T+1,) float32, observation-aligned
+    beta: np.ndarray  # (T+1,) float32, observation-aligned
 
     @property
     def num_steps(self) -> int:
@@ -158,8 +159,8 @@ _STEP_FIELDS = {  # name -> (dtype, number of rows relative to T, trailing shape
     "reward": (F4, 0, ()),
     "terminated": (B1, 0, ()),
     "truncated": (B1, 0, ()),
-    "alpha": (F4, 0, ()),
-    "beta": (F4, 0, ()),
+    "alpha": (F4, 1, ()),
+    "beta": (F4, 1, ()),
 }
 _CHUNK_SCALARS = ("actor", "env", "episode", "seq", "policy_version", "step0")
 _FIELDS = {

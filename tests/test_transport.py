@@ -48,7 +48,7 @@ def small_chunk(seq: int) -> TransitionChunk:
         frames=np.full((steps + 2, 64, 128), seq % 256, np.uint8),
         speed=np.zeros((steps + 1, 1)), last_action=np.zeros((steps + 1, 2)),
         action=np.zeros((steps, 2)), reward=np.ones(steps), terminated=np.zeros(steps, bool),
-        truncated=np.zeros(steps, bool), alpha=np.zeros(steps), beta=np.zeros(steps))
+        truncated=np.zeros(steps, bool), alpha=np.zeros(steps + 1), beta=np.zeros(steps + 1))
 
 
 # --- inbox and keys ------------------------------------------------------------------------

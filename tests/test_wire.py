@@ -28,8 +28,8 @@ def make_chunk(steps: int = 8, seed: int = 0, **overrides) -> TransitionChunk:
         action=rng.uniform(-1, 1, (steps, 2)).astype(np.float32),
         reward=rng.standard_normal(steps).astype(np.float32),
         terminated=np.zeros(steps, bool), truncated=np.zeros(steps, bool),
-        alpha=rng.uniform(-1, 1, steps).astype(np.float32),
-        beta=rng.uniform(-0.5, 0.5, steps).astype(np.float32),
+        alpha=rng.uniform(-1, 1, steps + 1).astype(np.float32),
+        beta=rng.uniform(-0.5, 0.5, steps + 1).astype(np.float32),
     )
     fields.update(overrides)
     return TransitionChunk(**fields)
@@ -169,7 +169,7 @@ def test_schema_violations(mutate):
 
 @pytest.mark.parametrize("name,shape", [
     ("frames", [9, H, W]), ("frames", [10, H, 64]), ("speed", [9]), ("action", [8, 3]),
-    ("reward", [8, 1]), ("alpha", [7]), ("frames", [10, -1, W]), ("reward", "8"), ("reward", [8.0]),
+    ("reward", [8, 1]), ("alpha", [8]), ("frames", [10, -1, W]), ("reward", "8"), ("reward", [8.0]),
 ])
 def test_wrong_shapes(name, shape):
     m = as_map(make_chunk(steps=8))

@@ -1,0 +1,56 @@
+"""The acting step, free of any network: policy on a batch of observations plus OU noise.
+
+Weights arrive as `common.wire.Weights` (name -> array, a version); until the first arrives
+the actor has no policy and `ready` is False.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import torch
+
+from actors.exploration import OrnsteinUhlenbeck
+from common.config.agent import AgentConfig, ScaleConfig
+from common.config.run import ActorConfig
+from common.networks import make_policy
+from common.wire import Weights
+
+
+class Acting:
+    """Batched policy inference with per-env OU exploration (paper: theta 1.0, sigma 0.1, dt 0.01)."""
+
+    def __init__(self, agent: AgentConfig, scale: ScaleConfig, actor: ActorConfig, n_envs: int, seed: int) -> None:
+        self.policy = make_policy(agent, scale).eval()
+        self.lowdim = agent.representation == "lowdim"
+        self.noise = OrnsteinUhlenbeck(n_envs, 2, theta=actor.ou_theta, sigma=actor.ou_sigma, dt=actor.ou_dt, seed=seed)
+        self.version = -1
+
+    @property
+    def ready(self) -> bool:
+        return self.version >= 0
+
+    def load(self, weights: Weights) -> bool:
+        """Adopt newer weights; returns False (and keeps the old ones) for a stale or mismatched set."""
+        if weights.version <= self.version:
+            return False
+        own = self.policy.state_dict()
+        if set(weights.tensors) != set(own) or any(tuple(weights.tensors[k].shape) != tuple(v.shape) for k, v in own.items()):
+            raise ValueError(f"weights v{weights.version} do not fit this actor's policy (agent/scale differ from the learner's?)")
+        self.policy.load_state_dict({k: torch.from_numpy(np.array(v, copy=True)) for k, v in weights.tensors.items()})
+        self.version = weights.version
+        return True
+
+    @torch.no_grad()
+    def act(self, obs: dict, info: dict, explore: bool = True) -> np.ndarray:
+        """Actions (n_envs, 2) in [-1, 1] for a batch of observations."""
+        batch = {k: torch.from_numpy(np.asarray(obs[k])) for k in ("image", "speed", "last_action")}
+        if self.lowdim:
+            batch["alpha"] = torch.as_tensor(np.asarray(info["alpha"], np.float32)).reshape(-1, 1)
+            batch["beta"] = torch.as_tensor(np.asarray(info["beta"], np.float32)).reshape(-1, 1)
+        action = self.policy(batch).numpy()
+        if explore:
+            action = action + self.noise.sample()
+        return np.clip(action, -1.0, 1.0).astype(np.float32)
+
+    def episode_ended(self, mask: np.ndarray) -> None:
+        self.noise.reset(mask)

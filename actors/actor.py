@@ -1,0 +1,152 @@
+"""The actor loop: several simulators, batched acting with OU noise, priority track sampling,
+transition chunks and episode summaries out, weights and the global track table in.
+
+    weights <- fetch (query) until the learner answers
+    loop: act on all envs, step them together, add each step to its env's chunk,
+          send full/ended chunks and episode summaries, adopt newer weights and track tables.
+
+The simulator never waits on the network longer than `actor.send_timeout_s` (see `Sender`);
+when the learner is gone the actor keeps its last weights, keeps sending (puts go nowhere)
+and adopts new weights as soon as a learner publishes again.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import logging
+import threading
+import time
+
+import numpy as np
+import torch
+
+from actors.acting import Acting
+from actors.chunker import ChunkBuilder
+from actors.envs.lane_drive import LaneDriveVectorEnv
+from actors.envs.tracks import track_names
+from actors.sender import Sender
+from actors.track_sampling import PriorityTrackSampler
+from common import wire
+from common.config.run import RunConfig
+from common.keys import Keys
+from common.transport import make_transport
+
+log = logging.getLogger(__name__)
+
+
+def env_kwargs(cfg: RunConfig) -> dict:
+    kwargs = dataclasses.asdict(cfg.env)
+    kwargs.pop("id")
+    return kwargs
+
+
+def _one(obs: dict, i: int) -> dict:
+    return {k: v[i] for k, v in obs.items()}
+
+
+def run_actor(cfg: RunConfig, transport=None, stop: threading.Event | None = None) -> dict:
+    """Run until `stop`, a 'stop' control message, or `actor.max_env_steps`; returns counters."""
+    a, keys = cfg.actor, Keys(cfg.run)
+    stop = stop or threading.Event()
+    torch.set_num_threads(a.torch_threads)
+    t = transport if transport is not None else make_transport(cfg.transport)
+    rng = np.random.default_rng(a.seed)
+    sampler = PriorityTrackSampler(track_names(a.track_split), rng)
+    sampled = cfg.env.track in ("train", "test", "all")  # a named or procedural road bypasses sampling
+    env = LaneDriveVectorEnv(a.num_envs, track_chooser=(lambda i: sampler.sample()) if sampled else None, **env_kwargs(cfg))
+    acting = Acting(cfg.agent, cfg.scale, a, a.num_envs, seed=a.seed)
+    sender = Sender(a.send_queue, a.send_timeout_s)
+    rejects = wire.RejectCounter()
+    stats = {"env_steps": 0, "episodes": 0, "chunks": 0, "weights_loaded": 0}
+    try:
+        t.declare_alive(keys.alive("actor", a.name))
+        weights_in = t.subscribe(keys.weights, capacity=1, overflow="drop_old")
+        tracks_in = t.subscribe(keys.tracks, capacity=1, overflow="drop_old")
+        control_in = t.subscribe(keys.control, capacity=16)
+        chunks_out, episodes_out = t.publisher(keys.transitions(a.name)), t.publisher(keys.episodes(a.name))
+
+        def poll_weights(block_s: float = 0.0) -> None:
+            got = weights_in.get(timeout=block_s) if block_s else weights_in.get(timeout=0)
+            payload = got.payload if got is not None else None
+            if payload is None and not acting.ready:
+                payload = t.fetch(keys.weights, timeout=a.weights_poll_s)
+            msg = rejects.decode(payload, expect=wire.Weights, key=keys.weights) if payload is not None else None
+            if msg is not None and acting.load(msg):
+                stats["weights_loaded"] += 1
+
+        paused = False
+
+        def poll_control() -> None:
+            nonlocal paused
+            for r in control_in.drain(16):
+                msg = rejects.decode(r.payload, expect=wire.Control, key=r.key)
+                if msg is not None:
+                    paused = msg.command == "pause" or (paused and msg.command != "resume")
+                    if msg.command == "stop":
+                        stop.set()
+
+        while not acting.ready and not stop.is_set():
+            poll_weights(block_s=a.weights_poll_s)
+            poll_control()
+        log.info("actor %s: policy v%d, %d envs", a.name, acting.version, a.num_envs)
+
+        obs, info = env.reset(seed=a.seed)
+        chunks = ChunkBuilder(a.name, a.num_envs, a.chunk_len)
+        for i in range(a.num_envs):
+            chunks.start(i, _one(obs, i), float(info["alpha"][i]), float(info["beta"][i]), acting.version)
+        returns = np.zeros(a.num_envs)
+        while not stop.is_set():
+            poll_control()
+            if paused:
+                time.sleep(0.05)
+                continue
+            poll_weights()
+            if (r := tracks_in.get(timeout=0)) is not None and (table := rejects.decode(r.payload, expect=wire.TrackTable, key=r.key)):
+                sampler.update(table.steps)
+            actions = acting.act(obs, info)
+            next_obs, reward, term, trunc, info = env.step(actions)
+            returns += reward
+            done = term | trunc
+            for i in range(a.num_envs):
+                src, inf = (info["final_obs"][i], info["final_info"]) if done[i] else (_one(next_obs, i), info)
+                chunk = chunks.add(i, actions[i], float(reward[i]), bool(term[i]), bool(trunc[i]), float(inf["alpha"][i]), float(inf["beta"][i]), src, acting.version)
+                if chunk is not None:
+                    sender.send(chunks_out, wire.encode(chunk))
+                    stats["chunks"] += 1
+                if done[i]:
+                    name, steps = str(info["final_info"]["track"][i]), int(info["final_info"]["steps"][i])
+                    summary = wire.EpisodeSummary(a.name, i, int(chunks.episodes[i]) - 1, name, steps, float(returns[i]), acting.version)
+                    sender.send(episodes_out, wire.encode(summary))
+                    sampler.record(name, steps)
+                    returns[i] = 0.0
+                    stats["episodes"] += 1
+                    chunks.start(i, _one(next_obs, i), float(info["alpha"][i]), float(info["beta"][i]), acting.version)
+            acting.episode_ended(done)
+            obs = next_obs
+            stats["env_steps"] += a.num_envs
+            if a.max_env_steps and stats["env_steps"] >= a.max_env_steps:
+                break
+    finally:
+        sender.close()
+        env.close()
+        if transport is None:
+            t.close()
+    stats.update(dropped=sender.dropped, send_errors=sender.errors, rejected=rejects.total, policy_version=acting.version)
+    log.info("actor %s stopped: %s", a.name, stats)
+    return stats
+
+
+def task(cfg) -> None:
+    """Hydra task of `gvf-actor`."""
+    from common.cli import stop_on_signals
+    from common.config.run import to_objects
+
+    run, _, _ = to_objects(cfg)
+    logging.basicConfig(level=logging.INFO, format="%(asctime)s %(name)s %(levelname)s %(message)s")
+    run_actor(run, stop=stop_on_signals())
+
+
+def main() -> None:
+    from common.cli import hydra_entry
+
+    hydra_entry(task)()

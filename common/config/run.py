@@ -1,0 +1,136 @@
+"""Schema of a whole run (Hydra's root config) and of the actor, learner and launcher roles.
+
+`conf/config.yaml` composes it from the groups env, agent, scale and transport; `register()`
+stores every schema in Hydra's ConfigStore so that each YAML file is checked against its
+dataclass (a misspelt or mistyped field is refused with the field's name).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Any, Optional
+
+from omegaconf import MISSING
+
+from common.config.agent import AgentConfig, ScaleConfig
+from common.config.env import EnvConfig
+from common.config.transport import TransportConfig
+
+
+@dataclass
+class ActorConfig:
+    """One actor process: several simulator instances, batched acting, OU exploration."""
+
+    name: str = "actor-0"
+    """Unique name of this actor on the wire (key gvf/<run>/transitions/<name>)."""
+    num_envs: int = 4
+    """Simulator instances stepped together in this process."""
+    chunk_len: int = 32
+    """Steps per transition chunk (a chunk also ends with its episode)."""
+    seed: int = 0
+    """Seed of the simulators and the exploration noise (the launcher offsets it per actor)."""
+    ou_theta: float = 1.0
+    """OU mean reversion (paper: 1.0)."""
+    ou_sigma: float = 0.1
+    """OU noise scale (paper: 0.1)."""
+    ou_dt: float = 0.01
+    """OU time step (paper: 0.01)."""
+    send_queue: int = 256
+    """Chunks waiting for the network before the oldest is dropped (and counted)."""
+    send_timeout_s: float = 0.5
+    """Longest the simulator waits for room in the send queue."""
+    weights_poll_s: float = 1.0
+    """How often an actor without weights asks the learner for them."""
+    max_env_steps: int = 0
+    """Stop after this many env steps in total (0: run until stopped)."""
+    torch_threads: int = 1
+    """Torch threads for acting (actors share cores with their simulators)."""
+    track_split: str = "train"
+    """Roads for priority track sampling: 'train', 'test' or 'all' (procedural roads bypass it)."""
+
+
+@dataclass
+class ActorsConfig:
+    """How many actors the single-machine launcher starts."""
+
+    count: int = 2
+    """Actor processes started by gvf-train."""
+    restart_backoff_s: float = 1.0
+    """First wait before restarting a crashed actor; doubles per crash, capped at 30 s."""
+
+
+@dataclass
+class LearnerConfig:
+    """The learner service: ingest, rate-limited training, weight broadcast, checkpoints."""
+
+    device: str = "auto"
+    """'cpu', 'cuda' or 'auto' (cuda when available)."""
+    samples_per_insert: float = 8.0
+    """Sampled transitions per inserted transition (rate limit; the learner neither starves nor overfits)."""
+    publish_every: int = 50
+    """Broadcast the acting weights every this many updates."""
+    checkpoint_every: int = 2000
+    """Checkpoint every this many updates (and at shutdown)."""
+    checkpoint_dir: str = "checkpoints"
+    """Where checkpoints are written (relative paths are under the run directory)."""
+    checkpoint_replay: bool = False
+    """Also save the replay buffer in checkpoints (large)."""
+    log_every: int = 100
+    """Write TensorBoard scalars every this many updates."""
+    track_table_every_s: float = 5.0
+    """Publish the global track table this often."""
+    ingest_batch: int = 64
+    """Most chunks decoded and inserted per loop iteration."""
+    inbox_chunks: int = 512
+    """Chunks waiting to be ingested before new ones are dropped (and counted); bounds memory."""
+    max_updates: int = 0
+    """Stop after this many updates (0: run until stopped)."""
+    torch_threads: int = 1
+    """Torch threads on CPU."""
+
+
+@dataclass
+class RunConfig:
+    """A whole run: `gvf-train`, `gvf-learner`, `gvf-actor` and `gvf-router` all read this."""
+
+    run: str = "default"
+    """Run name: the key prefix gvf/<run>/ and the TensorBoard folder."""
+    seed: int = 0
+    """Seed of networks and simulators."""
+    resume: bool = False
+    """Learner: restore the latest checkpoint in learner.checkpoint_dir."""
+    serial: bool = False
+    """gvf-train: run learner and actors in one process over the in-process transport."""
+    progress: bool = True
+    """gvf-train: show a live progress display."""
+    env: EnvConfig = field(default_factory=EnvConfig)
+    agent: Any = MISSING
+    scale: Any = MISSING
+    transport: TransportConfig = field(default_factory=TransportConfig)
+    actor: ActorConfig = field(default_factory=ActorConfig)
+    actors: ActorsConfig = field(default_factory=ActorsConfig)
+    learner: LearnerConfig = field(default_factory=LearnerConfig)
+    max_seconds: Optional[float] = None
+    """Stop the run after this many seconds (None: until Ctrl-C)."""
+
+
+def register() -> None:
+    """Store the schemas in Hydra's ConfigStore (YAML files name them in their defaults)."""
+    from hydra.core.config_store import ConfigStore
+
+    from common.config import agent
+
+    agent.register()
+    store = ConfigStore.instance()
+    store.store(name="run_schema", node=RunConfig)
+    store.store(group="env", name="env_schema", node=EnvConfig)
+    store.store(group="transport", name="transport_schema", node=TransportConfig)
+
+
+def to_objects(cfg: Any) -> tuple[RunConfig, AgentConfig, ScaleConfig]:
+    """A composed DictConfig as typed dataclass objects (validated)."""
+    from omegaconf import OmegaConf
+
+    run = OmegaConf.to_object(cfg)
+    run.env.validate()
+    return run, run.agent, run.scale

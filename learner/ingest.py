@@ -1,0 +1,72 @@
+"""From wire chunks to replay transitions, and the bookkeeping of what arrived.
+
+A chunk of T steps becomes T transitions in torchrl's layout (see `learner.replay`):
+observation t is (frames[t+1], frames[t]); alpha and beta are observation-aligned (T+1), so
+step t's cumulants are alpha[t+1], beta[t+1] (the next state's, Algorithm 1 line 6).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+import torch
+from tensordict import TensorDict
+
+from common.wire import TransitionChunk
+
+
+def chunks_to_transitions(chunks: list[TransitionChunk]) -> TensorDict:
+    """Concatenate the transitions of several chunks into one batch."""
+    def cat(get) -> torch.Tensor:
+        return torch.from_numpy(np.concatenate([get(c) for c in chunks]))
+
+    images = [c.observations() for c in chunks]
+    col = lambda x: x.reshape(-1, 1)  # noqa: E731
+    return TensorDict(
+        {
+            "image": torch.from_numpy(np.concatenate([im[:-1] for im in images])),
+            "speed": cat(lambda c: c.speed[:-1]),
+            "last_action": cat(lambda c: c.last_action[:-1]),
+            "alpha": cat(lambda c: col(c.alpha[:-1])),
+            "beta": cat(lambda c: col(c.beta[:-1])),
+            "action": cat(lambda c: c.action),
+            "next": {
+                "image": torch.from_numpy(np.concatenate([im[1:] for im in images])),
+                "speed": cat(lambda c: c.speed[1:]),
+                "last_action": cat(lambda c: c.action),
+                "alpha": cat(lambda c: col(c.alpha[1:])),
+                "beta": cat(lambda c: col(c.beta[1:])),
+                "reward": cat(lambda c: col(c.reward)),
+                "terminated": cat(lambda c: col(c.terminated)),
+                "truncated": cat(lambda c: col(c.truncated)),
+            },
+        },
+        batch_size=[sum(c.num_steps for c in chunks)],
+    )
+
+
+@dataclass
+class SequenceTracker:
+    """Counts lost chunks per actor from gaps in its sequence numbers.
+
+    A sequence number lower than expected means the actor restarted (it counts from 0 again).
+    """
+
+    expected: dict[str, int] = field(default_factory=dict)
+    lost: int = 0
+    received: int = 0
+    restarts: int = 0
+
+    def see(self, actor: str, seq: int) -> int:
+        """Record chunk `seq` of `actor`; returns how many chunks were lost just before it."""
+        self.received += 1
+        want = self.expected.get(actor)
+        self.expected[actor] = seq + 1
+        if want is None:
+            return 0
+        if seq < want:
+            self.restarts += 1
+            return 0
+        self.lost += seq - want
+        return seq - want
