@@ -13,6 +13,7 @@ and adopts new weights as soon as a learner publishes again.
 from __future__ import annotations
 
 import dataclasses
+import json
 import logging
 import threading
 import time
@@ -143,7 +144,8 @@ def task(cfg) -> None:
 
     run, _, _ = to_objects(cfg)
     logging.basicConfig(level=logging.INFO, format="%(asctime)s %(name)s %(levelname)s %(message)s")
-    run_actor(run, stop=stop_on_signals())
+    stats = run_actor(run, stop=stop_on_signals())
+    print(json.dumps(stats), flush=True)  # last line: the actor's counters, for scripts and tests
 
 
 def main() -> None:

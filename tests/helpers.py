@@ -1,0 +1,54 @@
+"""Test helpers: composing run configs, free ports, and running console scripts."""
+
+from __future__ import annotations
+
+import os
+import socket
+import subprocess
+import sys
+from pathlib import Path
+
+from hydra import compose, initialize_config_dir
+
+from common.cli import CONF_DIR
+from common.config.run import RunConfig, register, to_objects
+
+BIN = Path(sys.executable).parent
+
+# A config small enough for tests on 2 cores: tiny warm-up and frequent weights.
+TINY = [
+    "scale.warmup=64", "scale.batch_size=32", "scale.buffer_size=5000",
+    "actor.num_envs=2", "actor.chunk_len=16", "learner.publish_every=5",
+    "learner.samples_per_insert=4", "learner.log_every=5", "learner.checkpoint_every=50",
+]
+
+
+def compose_run(overrides: list[str] = ()) -> RunConfig:
+    register()
+    with initialize_config_dir(config_dir=CONF_DIR, version_base="1.3"):
+        cfg = compose("config", overrides=list(overrides))
+    return to_objects(cfg)[0]
+
+
+def free_port() -> int:
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
+
+
+def script(name: str, args: list[str], log: Path) -> subprocess.Popen:
+    """Start a console script with its output in `log` (no shell)."""
+    env = {**os.environ, "OMP_NUM_THREADS": "1", "PYTHONUNBUFFERED": "1"}
+    return subprocess.Popen([str(BIN / name), *args], stdout=open(log, "wb"), stderr=subprocess.STDOUT, env=env)
+
+
+def stop(proc: subprocess.Popen, timeout: float = 20.0) -> int:
+    """SIGTERM, wait, then SIGKILL; returns the exit code."""
+    if proc.poll() is None:
+        proc.terminate()
+        try:
+            proc.wait(timeout)
+        except subprocess.TimeoutExpired:
+            proc.kill()
+            proc.wait(10)
+    return proc.returncode

@@ -1,0 +1,30 @@
+"""Every config in conf/ composes against its schema; a bad value is refused naming the field."""
+
+from pathlib import Path
+
+import pytest
+from hydra.errors import ConfigCompositionException
+from omegaconf.errors import ValidationError
+
+from common.cli import CONF_DIR
+from tests.helpers import compose_run
+
+GROUPS = sorted(p.name for p in Path(CONF_DIR).iterdir() if p.is_dir() and p.name not in ("experiment",))
+
+
+@pytest.mark.parametrize("override", [f"{g}={f.stem}" for g in GROUPS for f in sorted(Path(CONF_DIR, g).glob("*.yaml"))])
+def test_every_group_option_composes(override):
+    run = compose_run([override])
+    assert run.agent.name and run.scale.name and run.env.track
+
+
+def test_root_defaults():
+    run = compose_run()
+    assert (run.agent.name, run.scale.name, run.transport.backend) == ("gvf_ddpg", "small", "zenoh")
+    assert run.agent.gammas == [0.0, 0.5, 0.9, 0.95, 0.97]
+
+
+@pytest.mark.parametrize("override, field", [("actor.num_envs=many", "num_envs"), ("env.lane_widht=3", "lane_widht"), ("env.direction=up", "direction")])
+def test_bad_values_are_refused_naming_the_field(override, field):
+    with pytest.raises((ConfigCompositionException, ValidationError, ValueError), match=field):
+        compose_run([override])
