@@ -5,7 +5,7 @@ VENV := .venv
 PY := $(VENV)/bin/python
 STAMP := $(VENV)/.installed
 
-.PHONY: train test bench clean
+.PHONY: train test demo bench clean
 
 $(STAMP): pyproject.toml
 	test -x $(PY) || $(PYTHON) -m venv $(VENV)
@@ -13,7 +13,12 @@ $(STAMP): pyproject.toml
 	$(PY) -m pip install -e '.[test]'
 	touch $(STAMP)
 
+# A local run: Zenoh router, learner and 2 actors on the embedded simulator, small CPU config.
 train: $(STAMP)
+	$(VENV)/bin/gvf-train scale=small actors.count=2 $(ARGS)
+
+# The kinematic controller driving the held-out roads, with the camera shown as text.
+demo: $(STAMP)
 	$(PY) -m actors.demo
 
 test: $(STAMP)

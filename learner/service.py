@@ -32,7 +32,6 @@ from learner.core import LearningCore
 from learner.ingest import SequenceTracker, chunks_to_transitions
 
 log = logging.getLogger(__name__)
-IMAGE_SHAPE = (64, 128)
 
 
 def resolve_device(name: str) -> str:
@@ -52,11 +51,12 @@ class LearnerService:
         self.core = LearningCore(cfg.agent, cfg.scale, device=resolve_device(self.lc.device), seed=cfg.seed)
         ckpt = Path(self.lc.checkpoint_dir)
         self.ckpt_dir = ckpt if ckpt.is_absolute() else self.run_dir / ckpt
-        self.seq, self.rejects = SequenceTracker(), wire.RejectCounter()
+        self.seq = SequenceTracker()
+        self.rejects = wire.RejectCounter(wire.Limits(max_bytes=self.lc.max_chunk_bytes), logger=log)
         self.tracks: dict[str, int] = {}
         self.returns: deque = deque(maxlen=100)
         self.lags: deque = deque(maxlen=200)
-        self.counters = {"inserted": 0, "episodes": 0, "chunks": 0, "bad_chunks": 0}
+        self.counters = {"inserted": 0, "episodes": 0, "chunks": 0}
         self._ready_at: int | None = None
         self._session_updates = 0
         self._held: dict | None = None
@@ -99,19 +99,12 @@ class LearnerService:
         self.weights_srv.update(payload)
         self.weights_out.put(payload)
 
-    def _valid(self, chunk: wire.TransitionChunk) -> bool:
-        """Shape checks that depend on the simulator, beyond what the wire format checks."""
-        return tuple(np.shape(chunk.frames)[1:]) == IMAGE_SHAPE and np.shape(chunk.alpha)[0] == chunk.num_steps + 1
-
     def ingest(self) -> int:
         """Decode, check and insert what has arrived; returns transitions inserted."""
         good = []
         for r in self.chunks_in.drain(self.lc.ingest_batch):
             chunk = self.rejects.decode(r.payload, expect=wire.TransitionChunk, key=r.key)
-            if chunk is None:
-                continue
-            if not self._valid(chunk):
-                self.counters["bad_chunks"] += 1
+            if chunk is None:  # counted by kind and dropped; it never reaches the replay
                 continue
             self.seq.see(chunk.actor, chunk.seq)
             self.lags.append(self.core.updates - chunk.policy_version)
@@ -212,10 +205,11 @@ class LearnerService:
             "policy_lag": float(np.mean(self.lags)) if self.lags else None,
             "lost_chunks": self.seq.lost,
             "actor_restarts": self.seq.restarts,
-            "rejected": self.rejects.total + self.counters["bad_chunks"],
+            "rejected": self.rejects.total,
             "rejected_by_kind": dict(self.rejects.counts),
             "inbox_dropped": self.chunks_in.dropped,
             "actors_alive": len(self.alive.alive()),
+            "actors_seen": sorted(self.seq.expected),
             "policy_version": self.core.updates,
         }
 

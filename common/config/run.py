@@ -81,6 +81,8 @@ class LearnerConfig:
     """Publish the global track table this often."""
     ingest_batch: int = 64
     """Most chunks decoded and inserted per loop iteration."""
+    max_chunk_bytes: int = 16 * 1024 * 1024
+    """Largest transition chunk accepted; bigger ones are counted (kind 'size') and dropped."""
     inbox_chunks: int = 512
     """Chunks waiting to be ingested before new ones are dropped (and counted); bounds memory."""
     max_updates: int = 0
