@@ -1,0 +1,84 @@
+"""Config schemas of the `agent` and `scale` groups (Hydra structured configs).
+
+`AgentConfig` holds what the paper fixes per algorithm variant (appendix, "GVF-DDPG
+Training" and "Baseline DDPG Training"); `ScaleConfig` holds network widths and replay
+sizes, `paper` being the appendix's sizes and `small` a CPU-sized version of the same
+shapes. The YAML files in `conf/agent/` and `conf/scale/` fill these in; `register()` puts
+the schemas in Hydra's ConfigStore under `agent/agent_schema` and `scale/scale_schema`.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+from omegaconf import MISSING
+
+PAPER_GAMMAS = [0.0, 0.5, 0.9, 0.95, 0.97]
+REPRESENTATIONS = ("predictive", "image", "lowdim")
+
+
+@dataclass
+class AgentConfig:
+    name: str = MISSING
+    """Variant name: gvf_ddpg, gvf_ddpg_g0, gvf_ddpg_g095, ddpg_image or ddpg_lowdim."""
+    representation: str = "predictive"
+    """What DDPG sees: predictive (phi from the GVFs), image, or lowdim (image plus alpha and beta)."""
+    cumulants: list[str] = field(default_factory=lambda: ["alpha", "beta"])
+    """Cumulants predicted by the GVFs, read from the next state (lane centeredness, road angle)."""
+    gammas: list[float] = field(default_factory=lambda: list(PAPER_GAMMAS))
+    """GVF discounts; one prediction per (cumulant, gamma), cumulant-major order."""
+    tau_width: float = 0.1
+    """Std (action units, box [-1, 1]) of the truncated normal target policy tau around the last action."""
+    rho_max: float = 100.0
+    """Importance ratios rho are clipped to this maximum before entering the replay."""
+    refresh_rho: bool = False
+    """Recompute rho of each GVF minibatch with the current discriminator (the paper computes it once, at insert)."""
+    discount: float = 0.99
+    """DDPG discount of the reward (not stated in the paper)."""
+    target_update: float = 0.001
+    """Soft target-network update rate of DDPG's actor and critic (paper: 0.001)."""
+    lr_actor: float = 1e-6
+    """Actor (policy) learning rate (paper: 1e-6)."""
+    lr_critic: float = 1e-4
+    """Critic (action-value) learning rate (paper: 1e-4)."""
+    lr_gvf: float = 1e-4
+    """GVF predictor learning rate (paper: 1e-4)."""
+    lr_behaviour: float = 1e-4
+    """Behaviour discriminator learning rate (paper: 1e-4)."""
+    actor_squash: str = "clip"
+    """Actor output squashing: clip (paper: linear then clip to [-1, 1]) or tanh."""
+    metrics_every: int = 100
+    """Updates between two metric reports."""
+
+
+@dataclass
+class ScaleConfig:
+    name: str = MISSING
+    """Scale name: small (CPU) or paper (the appendix's sizes)."""
+    conv_channels: list[int] = field(default_factory=lambda: [24, 36, 48, 64, 64])
+    """Output channels of the five PilotNet conv layers (5x5 stride 2 three times, then 3x3 twice)."""
+    gvf_hidden: list[int] = field(default_factory=lambda: [512, 384])
+    """Fully connected widths of the GVF network before its prediction outputs."""
+    behaviour_hidden: list[int] = field(default_factory=lambda: [512, 256])
+    """Fully connected widths of the behaviour discriminator g(a, s) before its single output."""
+    policy_hidden: list[int] = field(default_factory=lambda: [256, 128])
+    """Widths of each branch of GVF-DDPG's actor and critic on phi."""
+    image_policy_hidden: list[int] = field(default_factory=lambda: [512, 256])
+    """Widths of the image baselines' actor branches and critic head."""
+    lowdim_width: int = 12
+    """Width of DDPG-LowDim's separate branch for (alpha, beta)."""
+    batch_size: int = 128
+    """Minibatch size of every update (GVF, discriminator, DDPG)."""
+    buffer_size: int = 100_000
+    """Replay capacity in transitions (paper: 100,000)."""
+    warmup: int = 10_000
+    """Transitions in the replay before the first update (paper: 10,000)."""
+
+
+def register() -> None:
+    """Store the schemas in Hydra's ConfigStore (YAML files list them in their defaults)."""
+    from hydra.core.config_store import ConfigStore
+
+    store = ConfigStore.instance()
+    store.store(group="agent", name="agent_schema", node=AgentConfig)
+    store.store(group="scale", name="scale_schema", node=ScaleConfig)

@@ -1,0 +1,257 @@
+"""Networks of GVF-DDPG and its baselines (paper, appendix "GVF-DDPG Training" and
+"Baseline DDPG Training"), shared by the learner and the actors.
+
+- `PilotNetTrunk`: Bojarski et al. 2016 conv layers (24, 36, 48 5x5 stride 2; 64, 64 3x3)
+  on the two stacked uint8 grayscale frames, scaled to [0, 1].
+- `GVFNetwork` v^tau(s): trunk, then [features, speed, last action] -> FC 512, 384 -> one
+  linear output per (cumulant, gamma), cumulant-major (all gammas of alpha, then of beta).
+- `BehaviourNetwork` g(a, s): same trunk, [features, speed, last action, action] -> FC 512,
+  256 -> 1 logit; g = sigmoid(logit), so g / (1 - g) = exp(logit) (paper eq. 6).
+- `BranchedActor`: one branch per action (steering, target speed), FC 256, 128, 1 each; the
+  last layer of each branch U(-1e-3, 1e-3), bias 0; linear output clipped to [-1, 1].
+- `BranchedCritic`: "same structure as the policy network" with the action as input and a
+  linear output. The paper does not say how two branches make one Q; here each branch sees
+  the whole input and Q is the sum of the two branch outputs.
+- DDPG-Image / DDPG-LowDim: `ImageEncoder` (trunk + speed + last action, and for LowDim
+  alpha, beta through a 12-unit ReLU branch) under a `BranchedActor` (512, 256 branches)
+  or a one-branch `BranchedCritic` (512, 256, 1), as the appendix describes.
+
+`make_networks` builds what the learner trains; `make_policy` builds only the acting
+network, whose `state_dict` is what the learner broadcasts to the actors.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass
+
+import torch
+from torch import Tensor, nn
+
+from common.config.agent import REPRESENTATIONS, AgentConfig, ScaleConfig
+
+IMAGE_SHAPE = (2, 64, 128)  # (frames t and t-1, height, width), the simulator contract
+ACTION_DIM = 2  # steering, target speed
+LOW_DIM = 3  # speed (1) + last action (2), joined after the conv trunk
+PILOTNET_LAYERS = ((5, 2), (5, 2), (5, 2), (3, 1), (3, 1))  # (kernel, stride)
+
+
+def mlp(in_dim: int, hidden: Sequence[int], out_dim: int) -> nn.Sequential:
+    """ReLU hidden layers, linear output."""
+    layers: list[nn.Module] = []
+    for width in hidden:
+        layers += [nn.Linear(in_dim, width), nn.ReLU()]
+        in_dim = width
+    layers.append(nn.Linear(in_dim, out_dim))
+    return nn.Sequential(*layers)
+
+
+class PilotNetTrunk(nn.Module):
+    """Conv trunk on uint8 frames (B, 2, 64, 128) -> flat features (B, out_dim)."""
+
+    def __init__(self, channels: Sequence[int], image_shape: Sequence[int] = IMAGE_SHAPE):
+        super().__init__()
+        layers: list[nn.Module] = []
+        in_channels = image_shape[0]
+        for out_channels, (kernel, stride) in zip(channels, PILOTNET_LAYERS, strict=True):
+            layers += [nn.Conv2d(in_channels, out_channels, kernel, stride), nn.ReLU()]
+            in_channels = out_channels
+        self.layers = nn.Sequential(*layers, nn.Flatten())
+        with torch.no_grad():
+            self.out_dim = self.layers(torch.zeros(1, *image_shape)).shape[1]
+
+    def forward(self, image: Tensor) -> Tensor:
+        return self.layers(image.float() / 255.0)
+
+
+class GVFNetwork(nn.Module):
+    """v^tau(s; theta): one prediction per (cumulant, gamma) from frames, speed, last action."""
+
+    def __init__(self, channels: Sequence[int], hidden: Sequence[int], n_predictions: int):
+        super().__init__()
+        self.trunk = PilotNetTrunk(channels)
+        self.head = mlp(self.trunk.out_dim + LOW_DIM, hidden, n_predictions)
+        self.n_predictions = n_predictions
+
+    def forward(self, image: Tensor, speed: Tensor, last_action: Tensor) -> Tensor:
+        return self.head(torch.cat([self.trunk(image), speed, last_action], -1))
+
+
+class BehaviourNetwork(nn.Module):
+    """Discriminator g(a, s) as a logit: sigmoid(logit) = P(a came from mu, not eta)."""
+
+    def __init__(self, channels: Sequence[int], hidden: Sequence[int]):
+        super().__init__()
+        self.trunk = PilotNetTrunk(channels)
+        self.head = mlp(self.trunk.out_dim + LOW_DIM + ACTION_DIM, hidden, 1)
+
+    def forward(self, image: Tensor, speed: Tensor, last_action: Tensor, action: Tensor) -> Tensor:
+        return self.head(torch.cat([self.trunk(image), speed, last_action, action], -1))
+
+
+def _init_last_layer(branch: nn.Sequential) -> None:
+    # paper: "in order to not bias the replay buffer", near-zero initial actions
+    nn.init.uniform_(branch[-1].weight, -1e-3, 1e-3)
+    nn.init.zeros_(branch[-1].bias)
+
+
+class BranchedActor(nn.Module):
+    """pi(x): one MLP branch per action dimension, linear output squashed to [-1, 1]."""
+
+    def __init__(self, in_dim: int, hidden: Sequence[int], n_actions: int = ACTION_DIM,
+                 squash: str = "clip"):
+        super().__init__()
+        if squash not in ("clip", "tanh"):
+            raise ValueError(f"squash must be clip or tanh, got {squash!r}")
+        self.branches = nn.ModuleList(mlp(in_dim, hidden, 1) for _ in range(n_actions))
+        for branch in self.branches:
+            _init_last_layer(branch)
+        self.squash = squash
+
+    def forward(self, x: Tensor) -> Tensor:
+        out = torch.cat([branch(x) for branch in self.branches], -1)
+        return out.clamp(-1.0, 1.0) if self.squash == "clip" else torch.tanh(out)
+
+
+class BranchedCritic(nn.Module):
+    """Q(x, a): sum of `n_branches` MLP branches on [x, a]; linear output (B, 1)."""
+
+    def __init__(self, in_dim: int, hidden: Sequence[int], n_actions: int = ACTION_DIM,
+                 n_branches: int = 2):
+        super().__init__()
+        self.branches = nn.ModuleList(
+            mlp(in_dim + n_actions, hidden, 1) for _ in range(n_branches))
+
+    def forward(self, x: Tensor, action: Tensor) -> Tensor:
+        xa = torch.cat([x, action], -1)
+        return torch.stack([branch(xa) for branch in self.branches], 0).sum(0)
+
+
+class ImageEncoder(nn.Module):
+    """DDPG-Image input [trunk(frames), speed, last action]; LowDim adds a 12-unit (alpha, beta) branch."""
+
+    def __init__(self, channels: Sequence[int], lowdim_width: int = 0):
+        super().__init__()
+        self.trunk = PilotNetTrunk(channels)
+        self.lowdim = (nn.Sequential(nn.Linear(2, lowdim_width), nn.ReLU())
+                       if lowdim_width else None)
+        self.out_dim = self.trunk.out_dim + LOW_DIM + lowdim_width
+
+    def forward(self, image: Tensor, speed: Tensor, last_action: Tensor,
+                lowdim: Tensor | None = None) -> Tensor:
+        parts = [self.trunk(image), speed, last_action]
+        if self.lowdim is not None:
+            parts.append(self.lowdim(lowdim))
+        return torch.cat(parts, -1)
+
+
+class ImageActor(nn.Module):
+    """DDPG-Image / LowDim actor: encoder, then one 512-256-1 branch per action."""
+
+    def __init__(self, encoder: ImageEncoder, hidden: Sequence[int], squash: str = "clip"):
+        super().__init__()
+        self.encoder = encoder
+        self.head = BranchedActor(encoder.out_dim, hidden, squash=squash)
+
+    def forward(self, image: Tensor, speed: Tensor, last_action: Tensor,
+                lowdim: Tensor | None = None) -> Tensor:
+        return self.head(self.encoder(image, speed, last_action, lowdim))
+
+
+class ImageCritic(nn.Module):
+    """DDPG-Image / LowDim critic: the behaviour network's shape, encoder then 512-256-1."""
+
+    def __init__(self, encoder: ImageEncoder, hidden: Sequence[int]):
+        super().__init__()
+        self.encoder = encoder
+        self.head = BranchedCritic(encoder.out_dim, hidden, n_branches=1)
+
+    def forward(self, image: Tensor, speed: Tensor, last_action: Tensor, action: Tensor,
+                lowdim: Tensor | None = None) -> Tensor:
+        return self.head(self.encoder(image, speed, last_action, lowdim), action)
+
+
+def phi(predictions: Tensor, speed: Tensor, last_action: Tensor) -> Tensor:
+    """Predictive representation phi(s) = [GVF predictions, speed, last action] (paper section 3)."""
+    return torch.cat([predictions, speed, last_action], -1)
+
+
+class Policy(nn.Module):
+    """The acting network: obs mapping (image, speed, last_action[, alpha, beta]) -> action.
+
+    Predictive: actor(phi(gvf(obs))). Image / LowDim: the image actor. Accepts one
+    observation (image of shape (2, 64, 128)) or a batch.
+    """
+
+    def __init__(self, representation: str, actor: nn.Module, gvf: GVFNetwork | None = None):
+        super().__init__()
+        self.representation = representation
+        self.gvf = gvf
+        self.actor = actor
+
+    def forward(self, obs: Mapping[str, Tensor]) -> Tensor:
+        image, speed, last_action = obs["image"], obs["speed"], obs["last_action"]
+        single = image.dim() == 3
+        if single:
+            image, speed, last_action = image[None], speed[None], last_action[None]
+        if self.representation == "predictive":
+            action = self.actor(phi(self.gvf(image, speed, last_action), speed, last_action))
+        elif self.representation == "lowdim":
+            lowdim = torch.cat([obs["alpha"], obs["beta"]], -1)
+            action = self.actor(image, speed, last_action, lowdim[None] if single else lowdim)
+        else:
+            action = self.actor(image, speed, last_action)
+        return action[0] if single else action
+
+
+@dataclass
+class Networks:
+    """What the learner trains; `policy` shares its modules with `gvf` and `actor`."""
+
+    representation: str
+    actor: nn.Module
+    critic: nn.Module
+    policy: Policy
+    gvf: GVFNetwork | None = None
+    behaviour: BehaviourNetwork | None = None
+
+    def modules(self) -> dict[str, nn.Module]:
+        named = {"gvf": self.gvf, "behaviour": self.behaviour,
+                 "actor": self.actor, "critic": self.critic}
+        return {name: module for name, module in named.items() if module is not None}
+
+
+def n_predictions(agent: AgentConfig) -> int:
+    return len(agent.cumulants) * len(agent.gammas)
+
+
+def _check(agent: AgentConfig) -> None:
+    if agent.representation not in REPRESENTATIONS:
+        raise ValueError(f"representation must be one of {REPRESENTATIONS}, "
+                         f"got {agent.representation!r}")
+
+
+def make_policy(agent: AgentConfig, scale: ScaleConfig) -> Policy:
+    """The acting network alone, as actors build it to load the broadcast weights."""
+    _check(agent)
+    if agent.representation == "predictive":
+        gvf = GVFNetwork(scale.conv_channels, scale.gvf_hidden, n_predictions(agent))
+        actor = BranchedActor(gvf.n_predictions + LOW_DIM, scale.policy_hidden,
+                              squash=agent.actor_squash)
+        return Policy("predictive", actor, gvf)
+    lowdim = scale.lowdim_width if agent.representation == "lowdim" else 0
+    actor = ImageActor(ImageEncoder(scale.conv_channels, lowdim), scale.image_policy_hidden,
+                       squash=agent.actor_squash)
+    return Policy(agent.representation, actor)
+
+
+def make_networks(agent: AgentConfig, scale: ScaleConfig) -> Networks:
+    """Every network of the variant: acting policy, critic, and for GVF-DDPG the GVFs and g."""
+    policy = make_policy(agent, scale)
+    if agent.representation == "predictive":
+        critic = BranchedCritic(policy.gvf.n_predictions + LOW_DIM, scale.policy_hidden)
+        behaviour = BehaviourNetwork(scale.conv_channels, scale.behaviour_hidden)
+        return Networks("predictive", policy.actor, critic, policy, policy.gvf, behaviour)
+    lowdim = scale.lowdim_width if agent.representation == "lowdim" else 0
+    critic = ImageCritic(ImageEncoder(scale.conv_channels, lowdim), scale.image_policy_hidden)
+    return Networks(agent.representation, policy.actor, critic, policy)

@@ -1,0 +1,133 @@
+"""Networks (common/networks.py) and the agent/scale configs (common/config/agent.py,
+conf/agent, conf/scale): the paper's shapes, initialisation and output ranges."""
+
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+import torch
+from hydra import compose, initialize_config_dir
+from omegaconf import OmegaConf
+
+from common.config.agent import AgentConfig, ScaleConfig, register
+from common.networks import (BranchedActor, BranchedCritic, GVFNetwork, PilotNetTrunk,
+                             make_networks, make_policy)
+
+CONF = Path(__file__).resolve().parents[1] / "conf"
+VARIANTS = ["gvf_ddpg", "gvf_ddpg_g0", "gvf_ddpg_g095", "ddpg_image", "ddpg_lowdim"]
+
+
+def load(variant: str, scale: str) -> tuple[AgentConfig, ScaleConfig]:
+    """Compose conf/agent/<variant>.yaml and conf/scale/<scale>.yaml against the schemas."""
+    register()
+    with initialize_config_dir(str(CONF), version_base="1.3"):
+        cfg = compose(overrides=[f"+agent={variant}", f"+scale={scale}"])
+    return OmegaConf.to_object(cfg.agent), OmegaConf.to_object(cfg.scale)
+
+
+def obs(n: int, seed: int = 0) -> dict[str, torch.Tensor]:
+    g = torch.Generator().manual_seed(seed)
+    return {"image": torch.randint(0, 256, (n, 2, 64, 128), dtype=torch.uint8, generator=g),
+            "speed": torch.rand(n, 1, generator=g), "last_action": torch.rand(n, 2, generator=g),
+            "alpha": torch.rand(n, 1, generator=g), "beta": torch.rand(n, 1, generator=g)}
+
+
+@pytest.mark.parametrize("scale", ["small", "paper"])
+@pytest.mark.parametrize("variant", VARIANTS)
+def test_every_config_composes_and_builds_its_networks(variant, scale):
+    agent, scale_cfg = load(variant, scale)
+    assert isinstance(agent, AgentConfig) and agent.name == variant
+    assert scale_cfg.name == scale
+    nets = make_networks(agent, scale_cfg)
+    with torch.no_grad():
+        action = nets.policy(obs(3))
+    assert action.shape == (3, 2) and action.abs().max() <= 1.0
+    if variant.startswith("gvf"):
+        assert nets.gvf.n_predictions == 2 * len(agent.gammas)
+        assert nets.behaviour is not None
+    else:
+        assert nets.gvf is None and nets.behaviour is None
+
+
+def test_paper_gammas_and_prediction_count():
+    agent, _ = load("gvf_ddpg", "paper")
+    assert agent.gammas == [0.0, 0.5, 0.9, 0.95, 0.97]
+    assert agent.cumulants == ["alpha", "beta"]  # 2 x 5 = 10 predictions (see learner/gvf.py)
+    assert load("gvf_ddpg_g0", "small")[0].gammas == [0.0]
+    assert load("gvf_ddpg_g095", "small")[0].gammas == [0.95]
+
+
+def test_pilotnet_trunk_shapes_match_the_paper():
+    trunk = PilotNetTrunk([24, 36, 48, 64, 64])
+    convs = [m for m in trunk.modules() if isinstance(m, torch.nn.Conv2d)]
+    assert [(c.out_channels, c.kernel_size, c.stride) for c in convs] == [
+        (24, (5, 5), (2, 2)), (36, (5, 5), (2, 2)), (48, (5, 5), (2, 2)),
+        (64, (3, 3), (1, 1)), (64, (3, 3), (1, 1))]
+    assert trunk.out_dim == 64 * 1 * 9  # 64x128 -> 30x62 -> 13x29 -> 5x13 -> 3x11 -> 1x9
+
+
+def test_gvf_network_layer_sizes():
+    gvf = GVFNetwork([24, 36, 48, 64, 64], [512, 384], 10)
+    linears = [m for m in gvf.head if isinstance(m, torch.nn.Linear)]
+    assert [(l.in_features, l.out_features) for l in linears] == [(576 + 3, 512), (512, 384),
+                                                                  (384, 10)]
+
+
+def test_actor_last_layers_are_near_zero_and_outputs_clipped():
+    torch.manual_seed(0)
+    actor = BranchedActor(13, [256, 128])
+    for branch in actor.branches:
+        assert branch[-1].weight.abs().max() <= 1e-3
+        assert torch.all(branch[-1].bias == 0)
+        assert [l.out_features for l in branch if isinstance(l, torch.nn.Linear)] == [256, 128, 1]
+    x = torch.randn(64, 13)
+    assert actor(x).abs().max() < 0.05  # the initial policy barely moves
+    for branch in actor.branches:
+        torch.nn.init.constant_(branch[-1].bias, 5.0)
+    assert torch.all(actor(x) == 1.0)
+    assert torch.all(BranchedActor(13, [8], squash="tanh")(x).abs() < 1.0)
+
+
+def test_critic_is_the_sum_of_its_branches():
+    torch.manual_seed(0)
+    critic = BranchedCritic(13, [16, 8])
+    x, a = torch.randn(5, 13), torch.randn(5, 2)
+    xa = torch.cat([x, a], -1)
+    expected = critic.branches[0](xa) + critic.branches[1](xa)
+    assert torch.allclose(critic(x, a), expected)
+
+
+@pytest.mark.parametrize("variant", ["gvf_ddpg", "ddpg_lowdim"])
+def test_broadcast_weights_rebuild_the_same_policy_on_the_actor_side(variant):
+    agent, scale = load(variant, "small")
+    torch.manual_seed(0)
+    learner_side = make_networks(agent, scale)
+    torch.manual_seed(1)
+    actor_side = make_policy(agent, scale)
+    actor_side.load_state_dict(learner_side.policy.state_dict())
+    batch = obs(4)
+    with torch.no_grad():
+        expected = learner_side.policy(batch)
+        assert torch.equal(actor_side(batch), expected)
+        single = actor_side({k: v[1] for k, v in batch.items()})
+    assert single.shape == (2,) and torch.allclose(single, expected[1], atol=1e-6)
+
+
+def test_lowdim_policy_reads_alpha_and_beta():
+    agent, scale = load("ddpg_lowdim", "small")
+    torch.manual_seed(0)
+    policy = make_policy(agent, scale)
+    for branch in policy.actor.head.branches:  # make the output sensitive at init
+        torch.nn.init.normal_(branch[-1].weight)
+    batch = obs(4)
+    moved = dict(batch, alpha=batch["alpha"] + 1.0)
+    with torch.no_grad():
+        assert not torch.allclose(policy(batch), policy(moved))
+
+
+def test_common_imports_neither_learner_nor_actors():
+    code = ("import sys, common.networks, common.config.agent; "
+            "bad = [m for m in sys.modules if m.split('.')[0] in ('learner', 'actors')]; "
+            "assert not bad, bad")
+    subprocess.run([sys.executable, "-c", code], check=True, cwd=CONF.parent)
