@@ -1,0 +1,146 @@
+"""The one shared replay D of GVF-DDPG (Algorithm 1, lines 10-12 and 15; paper eq. 5).
+
+`ImportanceResamplingReplay` is a ring buffer (torchrl `LazyTensorStorage`) with a sum
+tree (torchrl `PrioritizedSampler`, alpha = 1, beta = 0, priority = rho), so that
+
+- `sample_by_rho` draws item i with probability rho_i / sum_j rho_j (line 12; the
+  sampler adds eps = 1e-8 to every priority, which keeps rho = 0 items legal);
+- `sample_uniform` draws uniformly (the discriminator, line 15, and DDPG);
+- `rho_bar` is the mean rho over the buffer (line 11), kept as a float64 running sum
+  updated on every insert, eviction and rho refresh, never recomputed from scratch; its
+  rounding drift is ~1e-16 relative per update, negligible over any run.
+
+The storage layout of a LaneDrive transition is compact: the next observation's previous
+frame is the current frame and its last action is the action, so only the new frame is
+stored (`compact` / `expand`, 24 KiB instead of 32 KiB per transition).
+
+Input transitions use torchrl's convention, a TensorDict of batch (B,) with
+  image uint8 (B, 2, 64, 128) [frame t, frame t-1], speed (B, 1), last_action (B, 2),
+  alpha (B, 1), beta (B, 1) (info at s_t; only DDPG-LowDim reads them), action (B, 2),
+  ("next", image | speed | alpha | beta | reward | terminated | truncated).
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+import torch
+from tensordict import TensorDict, TensorDictBase
+from torch import Tensor
+from torchrl.data import LazyTensorStorage, PrioritizedSampler, TensorDictReplayBuffer
+
+PRIORITY_EPS = 1e-8
+
+
+class ImportanceResamplingReplay:
+    """Ring buffer of TensorDicts carrying a "rho" entry (B, 1); see the module docstring."""
+
+    def __init__(self, capacity: int, *, device: str | torch.device = "cpu",
+                 seed: int | None = None):
+        self.capacity = capacity
+        self.generator = torch.Generator()
+        if seed is not None:
+            self.generator.manual_seed(seed)
+        self.buffer = TensorDictReplayBuffer(
+            storage=LazyTensorStorage(capacity, device=device),
+            # float32 tree: torchrl 0.14's float64 tree rejects its own default priority
+            sampler=PrioritizedSampler(capacity, alpha=1.0, beta=0.0, eps=PRIORITY_EPS),
+            priority_key="rho", generator=self.generator)
+        # rho of every slot, the source of the running sum's evictions
+        self.rho = torch.zeros(capacity, dtype=torch.float64)
+        self._rho_sum = 0.0
+
+    def __len__(self) -> int:
+        return len(self.buffer)
+
+    @property
+    def rho_bar(self) -> float:
+        """Mean rho over the items in the buffer (Algorithm 1, line 11)."""
+        return self._rho_sum / max(len(self), 1)
+
+    def extend(self, data: TensorDictBase) -> Tensor:
+        """Insert a batch (with "rho"); evicts the oldest items once full; returns slot indices."""
+        indices = []
+        # within one chunk of at most `capacity` items every slot is written once
+        for chunk in data.split(self.capacity, 0):
+            rho = chunk["rho"].detach().reshape(-1).to(torch.float64).cpu()
+            index = self.buffer.extend(chunk).reshape(-1).cpu()
+            self._rho_sum += float(rho.sum() - self.rho[index].sum())
+            self.rho[index] = rho
+            indices.append(index)
+        return torch.cat(indices)
+
+    def update_rho(self, index: Tensor, rho: Tensor) -> None:
+        """Replace the rho of slots `index` (duplicates allowed if their values agree)."""
+        index = index.reshape(-1).cpu()
+        rho = rho.detach().reshape(-1).to(torch.float64).cpu()
+        unique, first = _first_occurrence(index)
+        rho = rho[first]
+        self._rho_sum += float(rho.sum() - self.rho[unique].sum())
+        self.rho[unique] = rho
+        self.buffer.update_priority(unique, rho.float())
+
+    def sample_by_rho(self, n: int) -> TensorDictBase:
+        """n items with probability rho_i / sum_j rho_j, with their slot "index"."""
+        return self.buffer.sample(n)
+
+    def sample_uniform(self, n: int) -> TensorDictBase:
+        """n items uniformly at random (with replacement), with their slot "index"."""
+        index = torch.randint(len(self), (n,), generator=self.generator)
+        data = self.buffer.storage.get(index)
+        data["index"] = index
+        return data
+
+    def state_dict(self) -> dict[str, Any]:
+        return {"buffer": self.buffer.state_dict(), "rho": self.rho.clone(),
+                "rho_sum": self._rho_sum, "generator": self.generator.get_state()}
+
+    def load_state_dict(self, state: dict[str, Any]) -> None:
+        self.buffer.load_state_dict(state["buffer"])
+        self.rho.copy_(state["rho"])
+        self._rho_sum = state["rho_sum"]
+        self.generator.set_state(state["generator"])
+        # torchrl restores its own copy of the generator: share ours again, one stream
+        self.buffer.set_rng(self.generator)
+
+
+def _first_occurrence(index: Tensor) -> tuple[Tensor, Tensor]:
+    """Unique values of `index` and the position of each one's first occurrence."""
+    unique, inverse = torch.unique(index, return_inverse=True)
+    position = torch.arange(index.numel())
+    first = torch.full_like(unique, index.numel()).scatter_reduce(
+        0, inverse, position, reduce="amin")
+    return unique, first
+
+
+def compact(transitions: TensorDictBase, rho: Tensor) -> TensorDict:
+    """Storage layout of a batch of LaneDrive transitions (see the module docstring)."""
+    nxt = transitions["next"]
+    return TensorDict({
+        "image": transitions["image"], "speed": transitions["speed"],
+        "last_action": transitions["last_action"],
+        "alpha": transitions["alpha"], "beta": transitions["beta"],
+        "action": transitions["action"],
+        "next_frame": nxt["image"][:, :1], "next_speed": nxt["speed"],
+        "next_alpha": nxt["alpha"], "next_beta": nxt["beta"],
+        "reward": nxt["reward"], "terminated": nxt["terminated"].bool(),
+        "truncated": nxt["truncated"].bool(),
+        "rho": rho.reshape(-1, 1).float(),
+    }, batch_size=transitions.batch_size[:1])
+
+
+def expand(stored: TensorDictBase) -> TensorDict:
+    """Back to torchrl's convention: the next image is [new frame, frame t]."""
+    done = stored["terminated"] | stored["truncated"]
+    return TensorDict({
+        "image": stored["image"], "speed": stored["speed"],
+        "last_action": stored["last_action"],
+        "alpha": stored["alpha"], "beta": stored["beta"], "action": stored["action"],
+        "next": {
+            "image": torch.cat([stored["next_frame"], stored["image"][:, :1]], 1),
+            "speed": stored["next_speed"], "last_action": stored["action"],
+            "alpha": stored["next_alpha"], "beta": stored["next_beta"],
+            "reward": stored["reward"], "terminated": stored["terminated"],
+            "truncated": stored["truncated"], "done": done,
+        },
+    }, batch_size=stored.batch_size)
