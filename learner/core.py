@@ -1,0 +1,224 @@
+"""One combined learner update of GVF-DDPG and its baselines (Algorithm 1, lines 8-17, then
+DDPG on phi), free of any transport or process code.
+
+`LearningCore.add` is lines 8-10: it computes rho = tau / mu_hat with the current
+discriminator for the incoming transitions and stores them in the shared replay.
+`LearningCore.update` is lines 11-17 plus DDPG:
+
+  rho_bar <- mean rho in D                                          (line 11)
+  A ~ D with probability rho_i / sum rho_j                         (line 12)
+  U ~ D uniformly                                                   (line 15)
+  GVF TD step on A, targets from v(s') without gradient             (lines 13-14)
+  discriminator BCE step on U, half of its actions replaced by eta  (lines 16-17)
+  DDPG step on U with phi = [v(s), speed, last action], detached    (section 3)
+
+The three v(.) evaluations without gradient (v(s') on A, phi(s) and phi(s') on U) are one
+batched forward. All losses touch disjoint parameters, so one backward serves them all.
+
+rho refresh (`AgentConfig.refresh_rho`, default off as in the paper): with it, the rho of
+each GVF minibatch is recomputed with the current discriminator after sampling and
+written back (priorities and rho_bar); the minibatch itself was drawn with the old values.
+Off by default because Algorithm 1 computes rho once, at insert, and a refresh touches
+only items that are drawn, so items with a stale small rho stay rarely refreshed.
+
+Variants (`AgentConfig.representation`): predictive (gvf_ddpg, _g0, _g095) trains all
+three parts; image and lowdim (the DDPG baselines) train DDPG alone, rho = 1.
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+import torch
+from tensordict import TensorDict, TensorDictBase
+from torch import Tensor
+
+from common.config.agent import AgentConfig, ScaleConfig
+from common.networks import make_networks, phi
+from learner.behaviour import behaviour_loss, log_mu_hat
+from learner.ddpg import DDPG
+from learner.gvf import cumulants, expand_gammas, gvf_loss, importance_ratio, log_tau, td_target
+from learner.metrics import prediction_error
+from learner.replay import ImportanceResamplingReplay, compact, expand
+
+OBS_KEYS = ("image", "speed", "last_action")
+
+
+def _obs(td: TensorDictBase) -> tuple[Tensor, Tensor, Tensor]:
+    return td["image"], td["speed"], td["last_action"]
+
+
+class LearningCore:
+    """Networks, optimisers and the shared replay of one agent variant; see the module docstring."""
+
+    def __init__(self, agent: AgentConfig, scale: ScaleConfig, *, device: str = "cpu",
+                 seed: int = 0, buffer_size: int | None = None, warmup: int | None = None):
+        torch.manual_seed(seed)
+        self.agent, self.scale, self.device = agent, scale, torch.device(device)
+        self.batch_size = scale.batch_size
+        self.warmup = scale.warmup if warmup is None else warmup
+        self.nets = make_networks(agent, scale)
+        for module in self.nets.modules().values():
+            module.to(self.device)
+        self.predictive = self.nets.representation == "predictive"
+        self.replay = ImportanceResamplingReplay(
+            scale.buffer_size if buffer_size is None else buffer_size,
+            device=self.device, seed=seed)
+        self.generator = torch.Generator().manual_seed(seed)
+        if self.predictive:
+            self.gammas = expand_gammas(agent.gammas, len(agent.cumulants)).to(self.device)
+            self.gvf_optimizer = torch.optim.Adam(self.nets.gvf.parameters(), lr=agent.lr_gvf)
+            self.behaviour_optimizer = torch.optim.Adam(
+                self.nets.behaviour.parameters(), lr=agent.lr_behaviour)
+            keys = ["phi"]
+        else:
+            keys = list(OBS_KEYS)
+        lowdim = ["lowdim"] if self.nets.representation == "lowdim" else []
+        self.ddpg = DDPG(self.nets.actor, self.nets.critic,
+                         actor_in_keys=keys + lowdim,
+                         critic_in_keys=keys + ["action"] + lowdim,
+                         discount=agent.discount, target_update=agent.target_update,
+                         lr_actor=agent.lr_actor, lr_critic=agent.lr_critic)
+        self.updates = 0
+        self.held_out: TensorDictBase | None = None
+        self._rho_seen = 0
+        self._rho_clipped = 0
+
+    # --- Algorithm 1, lines 8-10 -------------------------------------------------------
+    @torch.no_grad()
+    def rho(self, td: TensorDictBase) -> tuple[Tensor, Tensor]:
+        """rho = tau(a|s) / mu_hat(a|s), clipped; and which ones were clipped."""
+        action = td["action"]
+        logit = self.nets.behaviour(*_obs(td), action)
+        return importance_ratio(log_tau(action, td["last_action"], self.agent.tau_width),
+                                log_mu_hat(logit, action), self.agent.rho_max)
+
+    def add(self, transitions: TensorDictBase) -> None:
+        """Store a batch of transitions (torchrl convention, see learner.replay) with its rho."""
+        transitions = transitions.to(self.device)
+        if self.predictive:
+            rho, clipped = self.rho(transitions)
+            self._rho_seen += clipped.numel()
+            self._rho_clipped += int(clipped.sum())
+        else:
+            rho = torch.ones(transitions.shape[0], 1, device=self.device)
+        self.replay.extend(compact(transitions, rho))
+
+    @property
+    def ready(self) -> bool:
+        """Warm-up done: enough transitions in the replay to start updating."""
+        return len(self.replay) >= max(self.warmup, 1)
+
+    def set_held_out(self, trajectory: TensorDictBase) -> None:
+        """Time-ordered transitions (one or more whole episodes) for the prediction metric."""
+        self.held_out = trajectory.to(self.device)
+
+    # --- one update ------------------------------------------------------------------------
+    def update(self) -> dict[str, float]:
+        """One combined update; metrics every `metrics_every` updates, else an empty dict."""
+        if not self.ready:
+            raise RuntimeError(f"warm-up: {len(self.replay)} of {self.warmup} transitions")
+        uniform = expand(self.replay.sample_uniform(self.batch_size))
+        losses: dict[str, Tensor] = {}
+        if self.predictive:
+            ddpg_batch = self._predictive_step(uniform, losses)
+        else:
+            ddpg_batch = self._observation_batch(uniform)
+        loss_ddpg, out = self.ddpg.loss(ddpg_batch)
+        total = loss_ddpg + sum(losses.values())
+        self._zero_grad()
+        total.backward()
+        self._step()
+        self.updates += 1
+        if self.updates % self.agent.metrics_every:
+            return {}
+        return self._metrics(losses, out)
+
+    def _predictive_step(self, uniform: TensorDictBase, losses: dict[str, Tensor]) -> TensorDict:
+        gvf, n = self.nets.gvf, self.batch_size
+        stored = self.replay.sample_by_rho(n)
+        if self.agent.refresh_rho:
+            self.replay.update_rho(stored["index"], self.rho(stored)[0])
+        rho_bar = self.replay.rho_bar
+        batch = expand(stored)
+        with torch.no_grad():  # v(s') of A, and phi(s), phi(s') of U, in one forward
+            states = [batch["next"], uniform, uniform["next"]]
+            v = gvf(*(torch.cat(parts) for parts in zip(*map(_obs, states)))).split(n)
+        target = td_target(cumulants(batch["next"], self.agent.cumulants),
+                           batch["next", "terminated"], v[0], self.gammas)
+        losses["td"] = gvf_loss(gvf(*_obs(batch)), target, rho_bar)
+        losses["behaviour"] = behaviour_loss(self.nets.behaviour, _obs(uniform),
+                                             uniform["action"], self.generator)
+        nxt = uniform["next"]
+        return TensorDict({
+            "phi": phi(v[1], uniform["speed"], uniform["last_action"]),
+            "action": uniform["action"],
+            "next": {"phi": phi(v[2], nxt["speed"], nxt["last_action"]),
+                     "reward": nxt["reward"], "done": nxt["done"],
+                     "terminated": nxt["terminated"]},
+        }, batch_size=[n])
+
+    def _observation_batch(self, uniform: TensorDictBase) -> TensorDictBase:
+        if self.nets.representation == "lowdim":
+            for td in (uniform, uniform["next"]):
+                td["lowdim"] = torch.cat([td["alpha"], td["beta"]], -1)
+        return uniform
+
+    def _optimizers(self) -> list[torch.optim.Optimizer]:
+        extra = [self.gvf_optimizer, self.behaviour_optimizer] if self.predictive else []
+        return extra + [self.ddpg.actor_optimizer, self.ddpg.critic_optimizer]
+
+    def _zero_grad(self) -> None:
+        for optimizer in self._optimizers():
+            optimizer.zero_grad(set_to_none=True)
+
+    def _step(self) -> None:
+        for optimizer in self._optimizers():
+            optimizer.step()
+        self.ddpg.target_updater.step()
+
+    def _metrics(self, losses: dict[str, Tensor], out: TensorDictBase) -> dict[str, float]:
+        metrics = {f"losses/{name}": float(value.detach()) for name, value in losses.items()}
+        metrics["losses/actor"] = float(out["loss_actor"].detach())
+        metrics["losses/critic"] = float(out["loss_value"].detach())
+        metrics["train/q_mean"] = float(out["pred_value"].detach().mean())
+        metrics["train/q_target_mean"] = float(out["target_value"].detach().mean())
+        metrics["train/updates"] = float(self.updates)
+        metrics["train/replay_size"] = float(len(self.replay))
+        if self.predictive:
+            metrics["train/rho_bar"] = self.replay.rho_bar
+            metrics["train/rho_clip_rate"] = self._rho_clipped / max(self._rho_seen, 1)
+            self._rho_seen = self._rho_clipped = 0
+            if self.held_out is not None:
+                metrics.update(prediction_error(self.nets.gvf, self.held_out,
+                                                self.agent.cumulants, self.agent.gammas))
+        return metrics
+
+    # --- weights and checkpoints ---------------------------------------------------------------
+    def policy_state_dict(self) -> dict[str, Tensor]:
+        """Weights of the acting network (`common.networks.make_policy`), for the actors."""
+        return self.nets.policy.state_dict()
+
+    def state_dict(self, with_replay: bool = False) -> dict[str, Any]:
+        state = {name: module.state_dict() for name, module in self.nets.modules().items()}
+        state["ddpg"] = self.ddpg.state_dict()
+        state["updates"] = self.updates
+        state["generator"] = self.generator.get_state()
+        if self.predictive:
+            state["gvf_optimizer"] = self.gvf_optimizer.state_dict()
+            state["behaviour_optimizer"] = self.behaviour_optimizer.state_dict()
+        if with_replay:
+            state["replay"] = self.replay.state_dict()
+        return state
+
+    def load_state_dict(self, state: dict[str, Any]) -> None:
+        for name, module in self.nets.modules().items():
+            module.load_state_dict(state[name])
+        self.ddpg.load_state_dict(state["ddpg"])
+        self.updates = state["updates"]
+        self.generator.set_state(state["generator"])
+        if self.predictive:
+            self.gvf_optimizer.load_state_dict(state["gvf_optimizer"])
+            self.behaviour_optimizer.load_state_dict(state["behaviour_optimizer"])
+        if "replay" in state:
+            self.replay.load_state_dict(state["replay"])
