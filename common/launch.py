@@ -26,6 +26,7 @@ from common.config.run import RunConfig
 log = logging.getLogger(__name__)
 LEARNER = "learner.service:run_learner"
 ACTOR = "actors.actor:run_actor"
+EVALUATOR = "actors.evaluation.periodic:run_evaluator"
 MAX_BACKOFF_S = 30.0
 
 
@@ -53,6 +54,8 @@ def _child(role: str, cfg: RunConfig, run_dir: str, log_name: str) -> None:
         run_router(cfg.transport, stop)
     elif role == "learner":
         resolve(LEARNER)(cfg, None, run_dir, stop)
+    elif role == "evaluator":
+        resolve(EVALUATOR)(cfg, None, run_dir, stop)
     else:
         resolve(ACTOR)(cfg, None, stop)
 
@@ -80,6 +83,8 @@ class Supervisor:
             self.children.append(Child("router", "router", cfg))
         self.children.append(Child("learner", "learner", cfg))
         self.children += [Child("actor", f"actor-{i}", actor_config(cfg, i)) for i in range(cfg.actors.count)]
+        if cfg.eval.every_updates > 0:
+            self.children.append(Child("evaluator", "evaluator", cfg))
 
     def start(self, child: Child) -> None:
         child.proc = self.ctx.Process(target=_child, args=(child.role, child.cfg, self.run_dir, child.name), name=child.name, daemon=False)
@@ -111,7 +116,7 @@ class Supervisor:
 
     def stop_all(self, timeout: float = 10.0) -> None:
         """SIGTERM every child (router last), wait, then kill what is left."""
-        order = [c for c in self.children if c.role == "actor"] + [c for c in self.children if c.role == "learner"] + [c for c in self.children if c.role == "router"]
+        order = [c for c in self.children if c.role in ("actor", "evaluator")] + [c for c in self.children if c.role == "learner"] + [c for c in self.children if c.role == "router"]
         for group in (order[:-1], order[-1:]):
             for c in group:
                 if c.proc is not None and c.proc.is_alive():
@@ -139,9 +144,13 @@ def run_serial(cfg: RunConfig, run_dir: str, stop: threading.Event) -> dict:
     learner = threading.Thread(target=lambda: result.update(resolve(LEARNER)(cfg, learner_t, run_dir, stop)), name="learner")
     learner.start()
     actors = []
-    for i in range(cfg.actors.count):
+    roles = [(ACTOR, (actor_config(cfg, i),), f"actor-{i}") for i in range(cfg.actors.count)]
+    if cfg.eval.every_updates > 0:
+        roles.append((EVALUATOR, (cfg,), "evaluator"))
+    for target, args, name in roles:
         t = make_transport(tcfg, bus)
-        th = threading.Thread(target=resolve(ACTOR), args=(actor_config(cfg, i), t, stop), name=f"actor-{i}")
+        extra = (run_dir,) if target == EVALUATOR else ()
+        th = threading.Thread(target=resolve(target), args=(*args, t, *extra, stop), name=name)
         th.start()
         actors.append((th, t))
     try:

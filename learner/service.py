@@ -12,6 +12,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import logging
 import os
@@ -78,7 +79,11 @@ class LearnerService:
         return True
 
     def save(self) -> Path:
-        state = {"core": self.core.state_dict(with_replay=self.lc.checkpoint_replay), "tracks": self.tracks, "counters": dict(self.counters)}
+        state = {
+            "core": self.core.state_dict(with_replay=self.lc.checkpoint_replay), "tracks": self.tracks, "counters": dict(self.counters),
+            # what an evaluator needs without the learner: the acting weights and the configs that shape them
+            "policy": self.core.policy_state_dict(), "agent": dataclasses.asdict(self.cfg.agent), "scale": dataclasses.asdict(self.cfg.scale),
+        }
         return checkpoint.save(self.ckpt_dir, self.core.updates, state)
 
     # -- wire -----------------------------------------------------------------------------

@@ -92,6 +92,24 @@ class LearnerConfig:
 
 
 @dataclass
+class EvalConfig:
+    """Evaluation without exploration noise: `gvf-eval`, and periodically during training."""
+
+    split: str = "test"
+    """Roads driven: 'test', 'train' or 'all'."""
+    directions: list = field(default_factory=lambda: ["ccw", "cw"])
+    """Driving directions, each road once per direction."""
+    damaged: bool = False
+    """Evaluate with damaged lane markings (the env.damage of env=lanedrive_damaged if unset)."""
+    every_updates: int = 0
+    """gvf-train: evaluate the broadcast policy every this many learner updates (0: never)."""
+    runs: Optional[str] = None
+    """gvf-eval: a run (or multirun) folder whose eval.jsonl files give learning curves."""
+    out_dir: Optional[str] = None
+    """gvf-eval: where reports go (default: Hydra's run folder)."""
+
+
+@dataclass
 class RunConfig:
     """A whole run: `gvf-train`, `gvf-learner`, `gvf-actor` and `gvf-router` all read this."""
 
@@ -112,6 +130,11 @@ class RunConfig:
     actor: ActorConfig = field(default_factory=ActorConfig)
     actors: ActorsConfig = field(default_factory=ActorsConfig)
     learner: LearnerConfig = field(default_factory=LearnerConfig)
+    eval: EvalConfig = field(default_factory=EvalConfig)
+    checkpoint: Optional[str] = None
+    """gvf-eval: a learner checkpoint file, or a folder to take the newest from."""
+    policy: str = "checkpoint"
+    """gvf-eval: 'checkpoint' (the network in `checkpoint`) or 'kinematic' (the classical controller)."""
     max_seconds: Optional[float] = None
     """Stop the run after this many seconds (None: until Ctrl-C)."""
 

@@ -1,0 +1,1 @@
+"""Evaluation: the paper's driving metrics, episodes without exploration noise, reports."""

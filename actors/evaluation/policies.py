@@ -1,0 +1,49 @@
+"""Policies the evaluator can drive: the kinematic controller, or the acting network of a
+learner checkpoint (which stores the policy weights with the agent and scale that built it)."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import torch
+
+from actors.controllers.kinematic import KinematicController
+from common.config.agent import AgentConfig, ScaleConfig
+from common.networks import make_policy
+
+
+def kinematic_policy():
+    controller = KinematicController()
+    return lambda obs, info: controller.act(info)
+
+
+def network_policy(policy: torch.nn.Module, lowdim: bool):
+    """Deterministic acting (no exploration noise)."""
+
+    @torch.no_grad()
+    def act(obs: dict, info: dict) -> np.ndarray:
+        batch = {k: torch.from_numpy(np.asarray(obs[k])) for k in ("image", "speed", "last_action")}
+        if lowdim:
+            batch["alpha"] = torch.tensor([info["alpha"]], dtype=torch.float32)
+            batch["beta"] = torch.tensor([info["beta"]], dtype=torch.float32)
+        return np.clip(policy(batch).numpy(), -1.0, 1.0)
+
+    return act
+
+
+def checkpoint_policy(path: str | Path):
+    """The acting network saved in a learner checkpoint (file, or the newest in a folder)."""
+    path = Path(path)
+    if path.is_dir():
+        found = sorted(path.glob("ckpt-*.pt")) or sorted(path.glob("**/checkpoints/ckpt-*.pt"))
+        if not found:
+            raise FileNotFoundError(f"no checkpoint (ckpt-*.pt) under {path}")
+        path = found[-1]
+    state = torch.load(path, map_location="cpu", weights_only=False)  # our own file: configs and counters
+    if "policy" not in state:
+        raise ValueError(f"{path} holds no policy weights (written by an older learner?)")
+    agent, scale = AgentConfig(**state["agent"]), ScaleConfig(**state["scale"])
+    policy = make_policy(agent, scale).eval()
+    policy.load_state_dict(state["policy"])
+    return network_policy(policy, agent.representation == "lowdim"), {"path": str(path), "agent": agent.name, "updates": state["core"]["updates"]}

@@ -1,0 +1,40 @@
+"""gvf-eval on the kinematic controller, and a short training run evaluated from its checkpoint."""
+
+import json
+import subprocess
+import threading
+
+from common.launch import run_serial
+from tests.helpers import BIN, TINY, compose_run
+
+FIGURES = ("lane_centeredness.png", "distributions.png")
+
+
+def gvf_eval(*args, cwd):
+    out = subprocess.run([str(BIN / "gvf-eval"), *args], capture_output=True, text=True, timeout=300, cwd=cwd)
+    assert out.returncode == 0, out.stderr[-3000:]
+    return out.stdout
+
+
+def test_kinematic_controller_laps_every_test_road_with_no_near_out_of_lane(tmp_path):
+    stdout = gvf_eval("policy=kinematic", f"hydra.run.dir={tmp_path}", cwd=tmp_path)
+    report = json.loads((tmp_path / "eval.json").read_text())
+    assert len(report["drives"]) == 12  # 6 test roads x 2 directions
+    assert all(d["metrics"]["lap_completed"] == 1.0 and d["metrics"]["near_out_of_lane"] == 0.0 for d in report["drives"])
+    assert "Near out of lane" in stdout and "| **mean** |" in (tmp_path / "eval.md").read_text()
+    assert all((tmp_path / f).stat().st_size > 1000 for f in FIGURES)
+
+
+def test_short_training_then_eval_of_its_checkpoint_writes_table_figures_and_curves(tmp_path):
+    run_dir = tmp_path / "run"
+    cfg = compose_run([*TINY, "serial=true", "actors.count=1", "max_seconds=60", "learner.max_updates=40", "eval.every_updates=20", "eval.directions=[ccw]"])
+    stop = threading.Event()
+    run_serial(cfg, str(run_dir), stop)
+    lines = [json.loads(x) for x in (run_dir / "eval.jsonl").read_text().splitlines()]
+    assert lines and lines[0]["updates"] >= 20 and len(lines[0]["drives"]) == 6  # periodic evaluation ran
+    out = tmp_path / "eval"
+    gvf_eval(f"checkpoint={run_dir}/checkpoints", f"eval.runs={run_dir}", "eval.directions=[ccw]", f"hydra.run.dir={out}", cwd=tmp_path)
+    report = json.loads((out / "eval.json").read_text())
+    assert report["title"].startswith("gvf_ddpg after") and len(report["drives"]) == 6
+    assert "Reward /s" in (out / "eval.md").read_text()
+    assert all((out / f).stat().st_size > 1000 for f in (*FIGURES, "learning_curves.png"))
