@@ -1,0 +1,648 @@
+"""Actor -> learner transitions/s over Zenoh against raw Zenoh pub/sub of the same bytes, in
+the same run; and the latency of a weight broadcast to 1 and 4 actors.
+
+Processes, all started with `spawn` (forking after zenoh is initialised hangs), on 127.0.0.1:
+
+  router     `common.zenoh_transport.run_router` on a free port
+  producer   a synthetic actor: one episode of valid TransitionChunks (random frames, the last
+             chunk truncated at 1200 steps) encoded once; every put copies a payload, writes the
+             chunk's seq and episode into it and publishes it with congestion control BLOCK on
+             gvf/<run>/transitions/<actor>
+  actors     for the weight broadcast: `actors.acting.Acting` (the acting policy of
+             `common.networks.make_policy`) behind a subscription to gvf/<run>-weights/weights,
+             acking every decoded and loaded version
+  this one   the learner: a real `LearnerService`, whose `ingest()` (the transport's bounded
+             inbox, strict wire decode, sequence gaps, `chunks_to_transitions`, insert) runs in a
+             loop with nothing else to do
+
+Phases, repeated --repeats times, each --warmup seconds then --seconds measured (the first
+ingest phase also warms up until the replay has been filled once: its pages are faulted in):
+
+  raw              the producer flat out into a subscriber on the learner's own session whose
+                   callback only counts (on gvf/<run>-raw/..., which the learner does not hear)
+  ingest           `ingest()` with `core.add` = `replay.extend(compact(batch, rho=1))`: decode and
+                   insert into the replay storage, rho precomputed. The producer is paced: it
+                   stays within --window chunks of the next seq the learner expects (published
+                   after every ingest), so the learner's inbox never overflows and the producer
+                   and router do not take from the learner's 2 cores what it would then drop
+  ingest_flat_out  the same with the producer flat out, as an actor fleet faster than the learner
+                   would be: the inbox overflows, and dropped chunks are counted
+  ingest_rho       paced, `core.add` unchanged: `LearningCore.add` computes rho with the behaviour
+                   network first (the learner's real insert cost)
+
+`transitions_per_s` is the paced ingest; `ratio` = transitions_per_s / raw_zenoh_per_s (medians
+over rounds; `ratio_per_repeat` pairs the phases of each round). Rates count only transitions
+that entered the replay; chunks lost on the network (sent - received), dropped by the full inbox
+or rejected by the decoder are counted. Each ingest phase also gives the learner's time per chunk
+in decode (msgpack + strict checks), convert (`chunks_to_transitions`) and insert (`core.add`).
+
+The weight broadcast is timed with time.time() (CLOCK_REALTIME: one clock for every process of
+this machine): publish -> every actor has decoded and loaded it (median and p90 over
+--broadcasts); the round trip to the acks is given too. Actors are idle meanwhile.
+
+Usage: python bench/transport.py [--seconds 2] [--warmup 0.5] [--repeats 3] [--broadcasts 20]
+       [--window 256] [--profile] [hydra overrides, e.g. learner.ingest_batch=16]
+The last line printed is one JSON object.
+"""
+
+from __future__ import annotations
+
+import argparse
+import contextlib
+import json
+import logging
+import multiprocessing as mp
+import os
+import socket
+import statistics
+import struct
+import sys
+import tempfile
+import time
+from dataclasses import replace
+from pathlib import Path
+
+if sys.path and Path(sys.path[0]).resolve() == Path(__file__).resolve().parent:
+    # run as a script, bench/ comes first on sys.path and bench/learner.py would shadow `learner`
+    sys.path.pop(0)
+
+import numpy as np  # noqa: E402
+
+from common import wire  # noqa: E402
+from common.config.transport import TransportConfig  # noqa: E402
+from common.keys import Keys  # noqa: E402
+
+TARGET_RATIO, GOAL_TRANSITIONS_PER_S = 0.5, 50_000.0
+EPISODE_STEPS = 1200
+"""LaneDrive truncates an episode at 1200 steps: the synthetic episode ends there too."""
+SEQ_MARK, EPISODE_MARK = 0x5E90_0000_0000_0001, 0x5E90_0000_0000_0002
+"""Placeholder seq / episode: msgpack writes ints >= 2**32 as 0xcf + 8 bytes, patched per put."""
+ACTOR = "bench-0"
+FILL_TIMEOUT_S = 60.0
+"""Longest the first ingest phase's warm-up waits for the replay to be full once."""
+RAW_SUFFIX, WEIGHTS_SUFFIX = "-raw", "-weights"
+
+
+# --- the synthetic actor ---------------------------------------------------------------------
+
+def episode_payloads(chunk_len: int, frame_shape: tuple[int, int], seed: int) -> list[tuple[bytes, int, int]]:
+    """One synthetic episode as encoded chunks, each with the offsets of its seq and episode.
+
+    Frames are consecutive (chunk k+1 starts with the last two frames of chunk k) and random;
+    the other fields are random finite floats; only the last chunk ends (truncated).
+    """
+    rng = np.random.default_rng(seed)
+    n_chunks = max(EPISODE_STEPS // chunk_len, 1)
+    steps = n_chunks * chunk_len
+    frames = rng.integers(0, 256, (steps + 2, *frame_shape), dtype=np.uint8)
+    speed = rng.random((steps + 1, 1), dtype=np.float32)
+    action = rng.uniform(-1, 1, (steps + 1, 2)).astype(np.float32)
+    reward = rng.random(steps, dtype=np.float32)
+    alpha, beta = rng.uniform(-1, 1, (2, steps + 1)).astype(np.float32)
+    out = []
+    for k in range(n_chunks):
+        s, T = k * chunk_len, chunk_len
+        truncated = np.zeros(T, bool)
+        truncated[-1] = k == n_chunks - 1
+        chunk = wire.TransitionChunk(
+            actor=ACTOR, env=0, episode=EPISODE_MARK, seq=SEQ_MARK, policy_version=0, step0=s,
+            frames=frames[s:s + T + 2], speed=speed[s:s + T + 1], last_action=action[s:s + T + 1],
+            action=action[s + 1:s + T + 1], reward=reward[s:s + T], terminated=np.zeros(T, bool),
+            truncated=truncated, alpha=alpha[s:s + T + 1], beta=beta[s:s + T + 1])
+        payload = wire.encode(chunk)
+        offsets = []
+        for name, mark in ((b"seq", SEQ_MARK), (b"episode", EPISODE_MARK)):
+            needle = bytes([0xA0 | len(name)]) + name + b"\xcf" + struct.pack(">Q", mark)
+            if payload.count(needle) != 1:
+                raise RuntimeError(f"cannot locate {name!r} in the encoded chunk")
+            offsets.append(payload.index(needle) + len(needle) - 8)
+        out.append((payload, *offsets))
+    return out
+
+
+def stamp(payload: bytes, seq_at: int, episode_at: int, seq: int, episode: int) -> bytearray:
+    """A copy of `payload` carrying `seq` and `episode` (still valid msgpack: uint64 fields)."""
+    buf = bytearray(payload)
+    struct.pack_into(">Q", buf, seq_at, seq)
+    struct.pack_into(">Q", buf, episode_at, episode)
+    return buf
+
+
+def credit_key(run: str) -> str:
+    """Where the paced learner says how far it got: the next seq it expects from the producer."""
+    return f"{Keys(run).root}/bench/credit"
+
+
+def producer_main(tcfg: TransportConfig, runs: list[str], chunk_len: int, frame_shape: tuple[int, int],
+                  commands, results, halt, ready) -> None:
+    """On ("send", run, window): publish the synthetic episode on `run` until `halt`.
+
+    window 0: flat out (as fast as BLOCK puts go); window W: at most W chunks ahead of the
+    learner's last credit, so that the learner's inbox never overflows.
+    """
+    from common.zenoh_transport import ZenohTransport
+
+    pool = episode_payloads(chunk_len, frame_shape, seed=1)
+    with ZenohTransport(tcfg) as t:
+        pubs = {run: t.publisher(Keys(run).transitions(ACTOR)) for run in runs}
+        # a bare zenoh publisher on the same key only to ask whether anyone subscribes yet
+        probes = {run: t.session.declare_publisher(Keys(run).transitions(ACTOR)) for run in runs}
+        credits = {run: t.subscribe(credit_key(run), capacity=1, overflow="drop_old") for run in runs}
+        seqs = dict.fromkeys(runs, 0)  # one stream per key: the learner counts gaps per actor
+        results.put(len(pool[0][0]))
+        ready.set()
+        while (cmd := commands.get())[0] == "send":
+            _, run, window = cmd
+            pub, deadline = pubs[run], time.monotonic() + 10.0
+            while not probes[run].matching_status.matching and time.monotonic() < deadline:
+                time.sleep(0.002)  # puts before the router knows the subscriber would vanish
+            start, acked = seqs[run], seqs[run]  # the learner drained the previous phase
+            while not halt.is_set():
+                seq = seqs[run]
+                while window and seq - acked >= window and not halt.is_set():
+                    if (r := credits[run].get(timeout=0.05)) is not None:
+                        acked = max(acked, int(r.payload))
+                if halt.is_set():
+                    break
+                payload, seq_at, episode_at = pool[seq % len(pool)]
+                pub.put(stamp(payload, seq_at, episode_at, seq, seq // len(pool)))
+                seqs[run] = seq + 1
+            results.put(seqs[run] - start)
+
+
+class Producer:
+    """The producer process and its command channel."""
+
+    def __init__(self, ctx, tcfg: TransportConfig, runs: list[str], chunk_len: int,
+                 frame_shape: tuple[int, int]) -> None:
+        self.commands, self.results = ctx.Queue(), ctx.Queue()
+        self.halt, self.ready = ctx.Event(), ctx.Event()
+        self.process = ctx.Process(target=producer_main, name="producer", daemon=True, args=(
+            tcfg, runs, chunk_len, frame_shape, self.commands, self.results, self.halt, self.ready))
+        self.process.start()
+
+    def start(self, run: str, window: int = 0) -> None:
+        self.halt.clear()
+        self.commands.put(("send", run, window))
+
+    def stop(self, timeout: float = 30.0) -> int:
+        """Halt and return how many chunks were put in this phase."""
+        self.halt.set()
+        return self.results.get(timeout=timeout)
+
+    def close(self) -> None:
+        self.halt.set()
+        self.commands.put(("quit",))
+
+
+# --- the actors of the weight broadcast -----------------------------------------------------
+
+def ack_key(run: str, actor: str = "*") -> str:
+    return f"{Keys(run).root}/bench/ack/{actor}"
+
+
+def weights_actor_main(tcfg: TransportConfig, run: str, name: str, agent, scale, actor_cfg,
+                       join, ready, stop) -> None:
+    """Build the acting policy, subscribe to the weights once `join` is set, ack each load."""
+    import torch
+
+    from actors.acting import Acting
+    from common.zenoh_transport import ZenohTransport
+
+    torch.set_num_threads(1)
+    acting = Acting(agent, scale, actor_cfg, n_envs=1, seed=0)
+    rejects = wire.RejectCounter()
+    with ZenohTransport(tcfg) as t:
+        acks = t.publisher(ack_key(run, name))
+        ready.set()
+        while not join.wait(0.2):
+            if stop.is_set():
+                return
+        # as the real actor: capacity 1, a newer broadcast replaces an unread one
+        weights_in = t.subscribe(Keys(run).weights, capacity=1, overflow="drop_old")
+        while not stop.is_set():
+            if (r := weights_in.get(timeout=0.2)) is None:
+                continue
+            received = time.time()
+            msg = rejects.decode(r.payload, expect=wire.Weights, key=r.key)
+            if msg is None:
+                continue
+            acting.load(msg)
+            loaded = time.time()
+            acks.put(json.dumps({"actor": name, "version": msg.version, "received": received,
+                                 "loaded": loaded, "policy_version": acting.version}).encode())
+
+
+def broadcast_latency(pub, acks, payload_of, actors: list[str], broadcasts: int, first_version: int) -> dict:
+    """Publish `broadcasts` Weights versions on `pub` and time each until every actor acked it on `acks`."""
+    version = first_version
+
+    def one(timeout: float) -> dict | None:
+        nonlocal version
+        version += 1
+        payload = payload_of(version)
+        got: dict[str, dict] = {}
+        start, t0 = time.time(), time.perf_counter()
+        pub.put(payload)
+        while len(got) < len(actors) and time.perf_counter() - t0 < timeout:
+            if (r := acks.get(timeout=0.05)) is not None:
+                ack = json.loads(r.payload)
+                if ack["version"] == version:
+                    got[ack["actor"]] = ack
+        rtt = time.perf_counter() - t0
+        if len(got) < len(actors):
+            return None
+        return {"loaded_ms": (max(a["loaded"] for a in got.values()) - start) * 1e3,
+                "received_ms": (max(a["received"] for a in got.values()) - start) * 1e3,
+                "rtt_ms": rtt * 1e3}
+
+    # the first broadcasts wait for new subscriptions to reach the router: not timed
+    deadline = time.monotonic() + 30.0
+    while one(timeout=0.5) is None:
+        if time.monotonic() > deadline:
+            raise RuntimeError(f"actors {actors} never acked a broadcast")
+    samples, missed = [], 0
+    for _ in range(broadcasts):
+        s = one(timeout=5.0)
+        if s is None:
+            missed += 1
+        else:
+            samples.append(s)
+        time.sleep(0.02)
+
+    def q(key: str, p: float) -> float:
+        return float(np.percentile([s[key] for s in samples], p)) if samples else float("nan")
+
+    return {"median_ms": q("loaded_ms", 50), "p90_ms": q("loaded_ms", 90),
+            "received_median_ms": q("received_ms", 50), "rtt_median_ms": q("rtt_ms", 50),
+            "rtt_p90_ms": q("rtt_ms", 90), "broadcasts": len(samples), "missed": missed,
+            "last_version": version}
+
+
+# --- the learner side -----------------------------------------------------------------------
+
+def raw_phase(session, run: str, producer: Producer, warmup: float, seconds: float, chunk_len: int) -> dict:
+    """Raw Zenoh: the same payloads into a subscriber whose callback only counts."""
+    import zenoh
+
+    count = [0]
+
+    def on_sample(_sample) -> None:
+        count[0] += 1
+
+    sub = session.declare_subscriber(Keys(run).all_transitions, zenoh.handlers.Callback(on_sample, indirect=False))
+    try:
+        producer.start(run, 0)
+        deadline = time.monotonic() + 30.0
+        while count[0] == 0:
+            if time.monotonic() > deadline:
+                raise RuntimeError("no chunk reached the raw subscriber in 30 s")
+            time.sleep(0.001)
+        time.sleep(warmup)
+        c0, t0 = count[0], time.perf_counter()
+        time.sleep(seconds)
+        c1, t1 = count[0], time.perf_counter()
+        sent = producer.stop()
+        settle(lambda: count[0])
+        received = count[0]
+    finally:
+        sub.undeclare()
+    chunks_per_s = (c1 - c0) / (t1 - t0)
+    return {"transitions_per_s": chunks_per_s * chunk_len, "chunks_per_s": chunks_per_s,
+            "sent": sent, "received": received, "lost": sent - received}
+
+
+def settle(counter, quiet: float = 0.3, timeout: float = 10.0) -> None:
+    """Wait until `counter()` stops changing for `quiet` seconds (what was in flight arrived)."""
+    last, since, deadline = counter(), time.monotonic(), time.monotonic() + timeout
+    while time.monotonic() - since < quiet and time.monotonic() < deadline:
+        time.sleep(0.02)
+        if (now := counter()) != last:
+            last, since = now, time.monotonic()
+
+
+@contextlib.contextmanager
+def stage_times(service):
+    """Seconds the learner's ingest spends in each stage, by timing the calls it makes:
+    decode (msgpack + strict checks), convert (`chunks_to_transitions`), insert (`core.add`)."""
+    import learner.service as learner_service
+
+    totals = dict.fromkeys(("decode", "convert", "insert"), 0.0)
+
+    def timed(stage: str, fn):
+        def call(*a, **kw):
+            t = time.perf_counter()
+            try:
+                return fn(*a, **kw)
+            finally:
+                totals[stage] += time.perf_counter() - t
+        return call
+
+    rejects, core = service.rejects, service.core
+    saved = (rejects.decode, learner_service.chunks_to_transitions, core.add)
+    rejects.decode = timed("decode", saved[0])
+    learner_service.chunks_to_transitions = timed("convert", saved[1])
+    core.add = timed("insert", saved[2])
+    try:
+        yield totals
+    finally:
+        del rejects.decode  # back to the class's method
+        learner_service.chunks_to_transitions, core.add = saved[1], saved[2]
+
+
+def ingest_phase(service, producer: Producer, warmup: float, seconds: float, credit=None,
+                 window: int = 0, profiler=None) -> dict:
+    """The learner's real ingest loop for warmup + seconds, then drain what is left.
+
+    With `credit` (a publisher) and `window` > 0 the producer is paced: after every ingest the
+    learner publishes the next seq it expects, and the producer stays within `window` chunks.
+    """
+    inbox, counters, seq = service.chunks_in, service.counters, service.seq
+    state = lambda: {"received": inbox.received, "dropped": inbox.dropped,  # noqa: E731
+                     "rejected": service.rejects.total, "chunks": counters["chunks"]}
+    before = state()
+
+    def ingest() -> int:
+        n = service.ingest()
+        if credit is not None:
+            credit.put(str(seq.expected.get(ACTOR, 0)).encode())
+        if n == 0:
+            time.sleep(0.005)  # the learner's own idle wait when nothing arrived
+        return n
+
+    producer.start(service.keys.run, window if credit is not None else 0)
+    deadline = time.monotonic() + 30.0
+    while ingest() == 0:
+        if time.monotonic() > deadline:
+            raise RuntimeError("no chunk reached the learner in 30 s")
+    start, replay = time.perf_counter(), service.core.replay
+    # steady state: the replay's storage has been written once (first writes fault its pages in)
+    while time.perf_counter() - start < warmup or (
+            len(replay) < replay.capacity and time.perf_counter() - start < FILL_TIMEOUT_S):
+        ingest()
+    if profiler is not None:
+        profiler.enable()
+    with stage_times(service) as stages:
+        t0, i0, c0 = time.perf_counter(), counters["inserted"], counters["chunks"]
+        # the window closes at the first batch to end after `seconds` (at least one batch inside)
+        while (t1 := time.perf_counter()) - t0 < seconds or counters["inserted"] == i0:
+            ingest()
+        i1, chunks = counters["inserted"], counters["chunks"] - c0
+    if profiler is not None:
+        profiler.disable()
+    sent = producer.stop()
+    settle(lambda: inbox.received)
+    while len(inbox):
+        ingest()
+    rate = (i1 - i0) / (t1 - t0)
+    d = {k: v - before[k] for k, v in state().items()}
+    return {"transitions_per_s": rate, "chunks_per_s": rate / service.cfg.actor.chunk_len,
+            "sent": sent, "received": d["received"], "inserted_chunks": d["chunks"],
+            "inbox_dropped": d["dropped"], "network_lost": sent - d["received"],
+            "rejected": d["rejected"],
+            # where the learner's time went, per chunk inserted in the window (the rest: waiting,
+            # draining the inbox, sequence bookkeeping, and the zenoh thread's share of the GIL)
+            **{f"{k}_ms_per_chunk": v * 1e3 / chunks for k, v in stages.items()},
+            "window_ms_per_chunk": (t1 - t0) * 1e3 / chunks}
+
+
+def use_precomputed_rho(core) -> None:
+    """`core.add` without the behaviour network: the batch goes into the replay with rho = 1."""
+    import torch
+
+    from learner.replay import compact
+
+    def add(transitions) -> None:
+        core.replay.extend(compact(transitions, torch.ones(transitions.shape[0], 1)))
+
+    core.add = add
+
+
+# --- wiring ---------------------------------------------------------------------------------
+
+def compose(overrides: list[str]):
+    from hydra import compose as hydra_compose
+    from hydra import initialize_config_dir
+
+    from common.cli import CONF_DIR
+    from common.config.run import register, to_objects
+
+    register()
+    with initialize_config_dir(config_dir=CONF_DIR, version_base="1.3"):
+        return to_objects(hydra_compose("config", overrides=list(overrides)))[0]
+
+
+def free_port() -> int:
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
+
+
+def router_main(tcfg: TransportConfig, stop, ready) -> None:
+    from common.zenoh_transport import run_router
+
+    run_router(tcfg, stop=stop, ready=ready)
+
+
+def start_router(ctx, tcfg: TransportConfig, stop) -> tuple[TransportConfig, mp.Process]:
+    """A router on a free port in its own process; returns the clients' config and the process."""
+    for _ in range(3):  # the free port can be taken between probe and bind
+        endpoint = f"tcp/127.0.0.1:{free_port()}"
+        router_cfg = replace(tcfg, router_listen=[endpoint], router_connect=[])
+        ready = ctx.Event()
+        proc = ctx.Process(target=router_main, args=(router_cfg, stop, ready), name="router", daemon=True)
+        proc.start()
+        if ready.wait(30):
+            return replace(tcfg, mode="client", connect=[endpoint], listen=[]), proc
+        proc.kill()
+        proc.join()
+    raise RuntimeError("the zenoh router did not start")
+
+
+def wait_all(events, what: str, timeout: float = 120.0) -> None:
+    deadline = time.monotonic() + timeout
+    for e in events:
+        if not e.wait(max(deadline - time.monotonic(), 0.0)):
+            raise RuntimeError(f"{what} did not start within {timeout:.0f} s")
+
+
+def stop_process(proc: mp.Process, timeout: float = 10.0) -> None:
+    proc.join(timeout)
+    if proc.is_alive():
+        proc.terminate()
+        proc.join(5)
+    if proc.is_alive():
+        proc.kill()
+        proc.join()
+
+
+def median(values: list[float]) -> float:
+    return float(statistics.median(values)) if values else float("nan")
+
+
+def main(argv: list[str] | None = None) -> dict:
+    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser.add_argument("--seconds", type=float, default=2.0, help="measured seconds per phase")
+    parser.add_argument("--warmup", type=float, default=0.5, help="unmeasured seconds before each phase")
+    parser.add_argument("--repeats", type=int, default=3, help="rounds of every phase; medians are reported")
+    parser.add_argument("--window", type=int, default=256,
+                        help="chunks a paced producer may be ahead of the learner (< learner.inbox_chunks)")
+    parser.add_argument("--broadcasts", type=int, default=20, help="timed weight broadcasts per actor count")
+    parser.add_argument("--actors", type=int, nargs="+", default=[1, 4], help="actor counts of the broadcast")
+    parser.add_argument("--no-rho", action="store_true", help="skip the ingest+rho phases")
+    parser.add_argument("--no-flat-out", action="store_true", help="skip the flat-out ingest phases")
+    parser.add_argument("--profile", action="store_true", help="cProfile the paced ingest phases (to stderr)")
+    parser.add_argument("overrides", nargs="*", help="hydra overrides of the run config, e.g. learner.ingest_batch=16")
+    args = parser.parse_args(argv)
+    logging.basicConfig(level=logging.WARNING, stream=sys.stderr)
+
+    from common.networks import make_policy
+    from common.zenoh_transport import ZenohTransport
+    from learner.service import LearnerService
+
+    cfg = compose(["run=bench", "learner.device=cpu", "transport=local", *args.overrides])
+    if not 0 < args.window < cfg.learner.inbox_chunks:
+        parser.error(f"--window must be in 1..{cfg.learner.inbox_chunks - 1} (learner.inbox_chunks)")
+    chunk_len, frame_shape = cfg.actor.chunk_len, (64, 128)
+    raw_run = cfg.run + RAW_SUFFIX
+    weights_run = cfg.run + WEIGHTS_SUFFIX
+    ctx = mp.get_context("spawn")
+    router_stop, actors_stop = ctx.Event(), ctx.Event()
+    procs: list[mp.Process] = []
+    producer = transport = service = None
+    rounds: list[dict] = []
+    latency: dict[int, dict] = {}
+    tmp = tempfile.TemporaryDirectory(prefix="bench-transport-")
+    started = time.perf_counter()
+    try:
+        tcfg, router = start_router(ctx, cfg.transport, router_stop)
+        procs.append(router)
+        cfg.transport = tcfg
+        producer = Producer(ctx, tcfg, [cfg.run, raw_run], chunk_len, frame_shape)
+        procs.append(producer.process)
+        # max(--actors) actor processes; the first n subscribe for the broadcast to n actors
+        joins, readies = [], []
+        for i in range(max(args.actors)):
+            joins.append(ctx.Event())
+            readies.append(ctx.Event())
+            p = ctx.Process(target=weights_actor_main, name=f"actor-{i}", daemon=True, args=(
+                tcfg, weights_run, f"a{i}", cfg.agent, cfg.scale, cfg.actor, joins[i], readies[i], actors_stop))
+            p.start()
+            procs.append(p)
+
+        transport = ZenohTransport(tcfg)
+        service = LearnerService(cfg, transport, run_dir=tmp.name)
+        service.open()
+        credit = transport.publisher(credit_key(cfg.run))
+        real_add = service.core.add
+        wait_all([producer.ready, *readies], "producer and actors")
+        chunk_bytes = producer.results.get(timeout=10)
+
+        profiler = None
+        if args.profile:
+            import cProfile
+
+            profiler = cProfile.Profile()
+        phase = dict(service=service, producer=producer, warmup=args.warmup, seconds=args.seconds)
+        for _ in range(args.repeats):
+            r = {"raw": raw_phase(transport.session, raw_run, producer, args.warmup, args.seconds, chunk_len)}
+            use_precomputed_rho(service.core)
+            r["ingest"] = ingest_phase(**phase, credit=credit, window=args.window, profiler=profiler)
+            if not args.no_flat_out:
+                r["ingest_flat_out"] = ingest_phase(**phase)
+            if not args.no_rho:
+                service.core.add = real_add
+                r["ingest_rho"] = ingest_phase(**phase, credit=credit, window=args.window)
+            rounds.append(r)
+            print(json.dumps({k: round(v["transitions_per_s"]) for k, v in r.items()}), file=sys.stderr)
+        if profiler is not None:
+            import pstats
+
+            pstats.Stats(profiler, stream=sys.stderr).sort_stats("tottime").print_stats(25)
+
+        tensors = {k: v.detach().cpu().numpy() for k, v in make_policy(cfg.agent, cfg.scale).state_dict().items()}
+        t_encode = time.perf_counter()
+        weights_bytes = len(wire.encode(wire.Weights(0, tensors)))
+        encode_ms = (time.perf_counter() - t_encode) * 1e3
+        version = 0
+        weights_out = transport.publisher(Keys(weights_run).weights)
+        acks = transport.subscribe(ack_key(weights_run), capacity=256)
+        for n in sorted(set(args.actors)):
+            for join in joins[:n]:
+                join.set()
+            latency[n] = broadcast_latency(weights_out, acks, lambda v: wire.encode(wire.Weights(v, tensors)),
+                                           [f"a{i}" for i in range(n)], args.broadcasts, version)
+            version = latency[n]["last_version"]
+    finally:
+        actors_stop.set()
+        if producer is not None:
+            producer.close()
+        if service is not None:
+            service.writer.close()
+        if transport is not None:
+            transport.close()
+        router_stop.set()
+        for p in reversed(procs):  # the router last: the others close their sessions through it
+            stop_process(p)
+        tmp.cleanup()
+    return summarize(rounds, latency, args, cfg, chunk_bytes, weights_bytes, encode_ms,
+                     time.perf_counter() - started)
+
+
+def summarize(rounds: list[dict], latency: dict[int, dict], args, cfg, chunk_bytes: int,
+              weights_bytes: int, encode_ms: float, wall_s: float) -> dict:
+    """The JSON result: medians over rounds, ratios, loss counts, broadcast latency, parameters."""
+    def med(phase: str) -> float | None:
+        values = [r[phase]["transitions_per_s"] for r in rounds if phase in r]
+        return round(median(values), 1) if values else None
+
+    def total(key: str) -> int:
+        return int(sum(r[p][key] for r in rounds for p in r if p.startswith("ingest")))
+
+    def ratio(a: float | None, b: float | None) -> float | None:
+        return round(a / b, 4) if a is not None and b else None
+
+    tps, raw = med("ingest"), med("raw")
+    result = {
+        "transitions_per_s": tps,
+        "raw_zenoh_per_s": raw,
+        "ratio": ratio(tps, raw),
+        "transitions_per_s_with_rho": med("ingest_rho"),
+        "ratio_with_rho": ratio(med("ingest_rho"), raw),
+        "transitions_per_s_flat_out": med("ingest_flat_out"),
+        "ratio_flat_out": ratio(med("ingest_flat_out"), raw),
+        "ratio_per_repeat": [ratio(r["ingest"]["transitions_per_s"], r["raw"]["transitions_per_s"]) for r in rounds],
+        "meets_ratio_target": tps / raw >= TARGET_RATIO,
+        "meets_50k_goal": tps >= GOAL_TRANSITIONS_PER_S,
+        "meets_50k_goal_with_rho": None if med("ingest_rho") is None else med("ingest_rho") >= GOAL_TRANSITIONS_PER_S,
+        "chunks_sent": total("sent"),
+        "chunks_inserted": total("inserted_chunks"),
+        "chunks_inbox_dropped": total("inbox_dropped"),
+        "chunks_network_lost": total("network_lost"),
+        "chunks_rejected": total("rejected"),
+        "raw_chunks_lost": int(sum(r["raw"]["lost"] for r in rounds)),
+        "weights_payload_bytes": weights_bytes,
+        "weights_encode_ms": round(encode_ms, 3),
+    }
+    for n, lat in latency.items():
+        result[f"weights_latency_ms_{n}"] = round(lat["median_ms"], 3)
+        result[f"weights_latency_p90_ms_{n}"] = round(lat["p90_ms"], 3)
+        result[f"weights_received_ms_{n}"] = round(lat["received_median_ms"], 3)
+        result[f"weights_rtt_ms_{n}"] = round(lat["rtt_median_ms"], 3)
+        result[f"weights_broadcasts_{n}"] = lat["broadcasts"]
+        result[f"weights_missed_{n}"] = lat["missed"]
+    result["rounds"] = [{phase: {k: round(v, 3) if isinstance(v, float) else v for k, v in r.items()}
+                         for phase, r in rnd.items()} for rnd in rounds]
+    result["params"] = {
+        "seconds": args.seconds, "warmup": args.warmup, "repeats": args.repeats, "window": args.window,
+        "broadcasts": args.broadcasts, "actors": args.actors, "chunk_len": cfg.actor.chunk_len,
+        "frame_shape": [64, 128], "chunk_bytes": chunk_bytes, "ingest_batch": cfg.learner.ingest_batch,
+        "inbox_chunks": cfg.learner.inbox_chunks, "buffer_size": cfg.scale.buffer_size,
+        "scale": cfg.scale.name, "agent": cfg.agent.name, "torch_threads": cfg.learner.torch_threads,
+        "cpus": os.cpu_count(), "overrides": args.overrides, "wall_s": round(wall_s, 1),
+    }
+    return result
+
+
+if __name__ == "__main__":
+    print(json.dumps(main()), flush=True)
