@@ -17,6 +17,7 @@ import json
 import logging
 import threading
 import time
+import zlib
 
 import numpy as np
 import torch
@@ -41,6 +42,11 @@ def env_kwargs(cfg: RunConfig) -> dict:
     return kwargs
 
 
+def actor_seed(seed: int, name: str) -> int:
+    """Actors started with the same seed but different names must not drive the same roads and noise."""
+    return (seed * 1_000_003 + zlib.crc32(name.encode())) % 2**31
+
+
 def _one(obs: dict, i: int) -> dict:
     return {k: v[i] for k, v in obs.items()}
 
@@ -51,11 +57,12 @@ def run_actor(cfg: RunConfig, transport=None, stop: threading.Event | None = Non
     stop = stop or threading.Event()
     torch.set_num_threads(a.torch_threads)
     t = transport if transport is not None else make_transport(cfg.transport)
-    rng = np.random.default_rng(a.seed)
+    seed = actor_seed(a.seed, a.name)
+    rng = np.random.default_rng(seed)
     sampler = PriorityTrackSampler(track_names(a.track_split), rng)
     sampled = cfg.env.track in ("train", "test", "all")  # a named or procedural road bypasses sampling
     env = LaneDriveVectorEnv(a.num_envs, track_chooser=(lambda i: sampler.sample()) if sampled else None, **env_kwargs(cfg))
-    acting = Acting(cfg.agent, cfg.scale, a, a.num_envs, seed=a.seed)
+    acting = Acting(cfg.agent, cfg.scale, a, a.num_envs, seed=seed)
     sender = Sender(a.send_queue, a.send_timeout_s)
     rejects = wire.RejectCounter()
     stats = {"env_steps": 0, "episodes": 0, "chunks": 0, "weights_loaded": 0}
@@ -91,7 +98,7 @@ def run_actor(cfg: RunConfig, transport=None, stop: threading.Event | None = Non
             poll_control()
         log.info("actor %s: policy v%d, %d envs", a.name, acting.version, a.num_envs)
 
-        obs, info = env.reset(seed=a.seed)
+        obs, info = env.reset(seed=seed)
         chunks = ChunkBuilder(a.name, a.num_envs, a.chunk_len)
         for i in range(a.num_envs):
             chunks.start(i, _one(obs, i), float(info["alpha"][i]), float(info["beta"][i]), acting.version)
