@@ -56,7 +56,7 @@ def run_actor(cfg: RunConfig, transport=None, stop: threading.Event | None = Non
     a, keys = cfg.actor, Keys(cfg.run)
     stop = stop or threading.Event()
     torch.set_num_threads(a.torch_threads)
-    t = transport if transport is not None else make_transport(cfg.transport)
+    t = transport if transport is not None else make_transport(cfg.transport, stop=stop)
     seed = actor_seed(a.seed, a.name)
     rng = np.random.default_rng(seed)
     sampler = PriorityTrackSampler(track_names(a.track_split), rng)
@@ -151,7 +151,14 @@ def task(cfg) -> None:
 
     run, _, _ = to_objects(cfg)
     logging.basicConfig(level=logging.INFO, format="%(asctime)s %(name)s %(levelname)s %(message)s")
-    stats = run_actor(run, stop=stop_on_signals())
+    stop = stop_on_signals()
+    try:
+        stats = run_actor(run, stop=stop)
+    except ConnectionError:
+        if not stop.is_set():
+            raise
+        log.info("stopped while waiting for a router")
+        return
     print(json.dumps(stats), flush=True)  # last line: the actor's counters, for scripts and tests
 
 

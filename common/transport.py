@@ -201,13 +201,14 @@ def check_congestion(congestion: str) -> str:
     return congestion
 
 
-def make_transport(cfg: TransportConfig, bus: object | None = None) -> Transport:
-    """The transport `cfg.backend` names; `bus` joins in-process transports of one process."""
+def make_transport(cfg: TransportConfig, bus: object | None = None, stop: object | None = None) -> Transport:
+    """The transport `cfg.backend` names; `bus` joins in-process transports of one process;
+    `stop` (an Event) ends an endless wait for a router (connect_timeout_s < 0)."""
     if cfg.backend == "zenoh":
         # imported here so that serial mode and tests never load zenoh
         from common.zenoh_transport import ZenohTransport
 
-        return ZenohTransport(cfg)
+        return ZenohTransport(cfg, stop)
     if cfg.backend == "inproc":
         from common.inproc_transport import Bus, InprocTransport
 

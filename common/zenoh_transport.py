@@ -16,6 +16,8 @@ Facts this module is built on (checked with eclipse-zenoh 1.10.2, see DESIGN.md)
 
 from __future__ import annotations
 
+import dataclasses
+
 import json
 import logging
 import signal
@@ -121,14 +123,21 @@ class ZenohLatestServer(LatestValue):
 class ZenohTransport:
     """`Transport` over one Zenoh session built from a TransportConfig."""
 
-    def __init__(self, cfg: TransportConfig) -> None:
+    def __init__(self, cfg: TransportConfig, stop: Any = None) -> None:
+        """`stop` (an Event): with connect_timeout_s < 0, stop waiting for a router once it is set."""
         self.cfg = cfg
-        try:
-            self.session = zenoh.open(zenoh_config(cfg))
-        except zenoh.ZError as exc:
-            # callers retry on ConnectionError without importing zenoh
-            raise ConnectionError(
-                f"cannot open a zenoh session ({cfg.mode}, connect={cfg.connect}): {exc}") from exc
+        forever = cfg.connect_timeout_s < 0
+        # waiting for ever happens in 1 s attempts: zenoh.open itself cannot be interrupted by a signal
+        attempt = dataclasses.replace(cfg, connect_timeout_s=1.0) if forever else cfg
+        while True:
+            try:
+                self.session = zenoh.open(zenoh_config(attempt))
+                break
+            except zenoh.ZError as exc:
+                if not forever or (stop is not None and stop.is_set()):
+                    # callers retry on ConnectionError without importing zenoh
+                    raise ConnectionError(
+                        f"cannot open a zenoh session ({cfg.mode}, connect={cfg.connect}): {exc}") from exc
         self._owned: list = []
         self._closed = False
 

@@ -249,7 +249,7 @@ def run_learner(cfg: RunConfig, transport, run_dir: str | Path, stop: threading.
 
     if transport is not None:
         return LearnerService(cfg, transport, run_dir).run(stop)
-    with make_transport(cfg.transport) as t:
+    with make_transport(cfg.transport, stop=stop) as t:
         result = LearnerService(cfg, t, run_dir).run(stop)
     log.info("learner stopped: %s", result)
     return result
@@ -264,7 +264,13 @@ def task(cfg) -> None:
 
     run, _, _ = to_objects(cfg)
     logging.basicConfig(level=logging.INFO, format="%(asctime)s %(name)s %(levelname)s %(message)s")
-    run_learner(run, None, HydraConfig.get().runtime.output_dir, stop_on_signals())
+    stop = stop_on_signals()
+    try:
+        run_learner(run, None, HydraConfig.get().runtime.output_dir, stop)
+    except ConnectionError:
+        if not stop.is_set():
+            raise
+        log.info("stopped while waiting for a router")
 
 
 def main() -> None:

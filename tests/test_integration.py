@@ -50,3 +50,13 @@ def test_learner_and_actor_processes_train_over_zenoh(tmp_path, endpoint):
         codes = [stop(p) for p in reversed(procs)]
     assert codes[0] == 0  # the learner stops cleanly on SIGTERM
     assert any((tmp_path / "learner" / "checkpoints").iterdir())  # and checkpoints on the way out
+
+
+def test_an_actor_waiting_for_ever_for_a_router_stops_on_sigterm(tmp_path, endpoint):
+    proc = script("gvf-actor", [f"transport.connect=[{endpoint}]", "transport.connect_timeout_s=-1", f"hydra.run.dir={tmp_path}"], tmp_path / "actor.log")
+    try:
+        time.sleep(5.0)
+        assert proc.poll() is None  # still waiting: nobody listens there
+    finally:
+        code = stop(proc, timeout=10)
+    assert code == 0, (tmp_path / "actor.log").read_text()[-2000:]
