@@ -1,0 +1,59 @@
+"""One comparison table and figure set from a reproduction multirun (`gvf-train -m +experiment=reproduce`):
+every run's final checkpoint evaluated on the held-out roads, mean and std over seeds per agent
+variant, with the kinematic controller as reference, and learning curves per variant.
+
+    python -m actors.evaluation.compare MULTIRUN_DIR [--out docs/results]
+"""
+
+from __future__ import annotations
+
+import argparse
+from collections import defaultdict
+from pathlib import Path
+
+import numpy as np
+import yaml
+
+from actors.evaluation.evaluate import evaluate, summary
+from actors.evaluation.policies import checkpoint_policy, kinematic_policy
+from actors.evaluation.report import COLUMNS, learning_curves
+
+
+def job_agent(job: Path) -> str:
+    overrides = yaml.safe_load((job / ".hydra" / "overrides.yaml").read_text())
+    return next((o.split("=", 1)[1] for o in overrides if o.startswith("agent=")), "gvf_ddpg")
+
+
+def compare(multirun: Path, out: Path) -> Path:
+    out.mkdir(parents=True, exist_ok=True)
+    per_agent: dict[str, list[dict]] = defaultdict(list)
+    jobs: dict[str, list[Path]] = defaultdict(list)
+    for job in sorted(p.parent.parent for p in multirun.glob("*/checkpoints/ckpt-*.pt")):
+        agent = job_agent(job)
+        policy, _ = checkpoint_policy(job / "checkpoints")
+        per_agent[agent].append(summary(evaluate(policy)))
+        jobs[agent].append(job)
+    reference = summary(evaluate(kinematic_policy()))
+    head = "| method | runs | " + " | ".join(f"{h} {a}" for _, h, a in COLUMNS) + " |"
+    lines = [head, "|" + " --- |" * (len(COLUMNS) + 2)]
+    for agent, runs in sorted(per_agent.items()):
+        cells = [f"{np.mean([r[k] for r in runs]):.3f} ± {np.std([r[k] for r in runs]):.3f}" for k, _, _ in COLUMNS]
+        lines.append(f"| {agent} | {len(runs)} | " + " | ".join(cells) + " |")
+    lines.append("| kinematic controller | - | " + " | ".join(f"{reference[k]:.3f}" for k, _, _ in COLUMNS) + " |")
+    for agent, dirs in jobs.items():
+        learning_curves(dirs, out / f"learning_curves_{agent}.png")
+    table = out / "comparison.md"
+    table.write_text("\n".join(lines) + "\n")
+    return table
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser.add_argument("multirun", type=Path)
+    parser.add_argument("--out", type=Path, default=Path("docs/results"))
+    args = parser.parse_args()
+    print(compare(args.multirun, args.out).read_text())
+
+
+if __name__ == "__main__":
+    main()

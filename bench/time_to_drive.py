@@ -1,0 +1,77 @@
+"""Time to drive: wall-clock minutes until GVF-DDPG (small CPU config, 2 actors) completes a full
+lap of every held-out road, judged by the periodic noise-free evaluation of a real `gvf-train` run.
+
+Usage: python bench/time_to_drive.py [--budget-min 30] [--eval-every 500] [-- extra Hydra overrides]
+Stops at the first evaluation where every test lap (both directions) is completed, or at the
+budget. The last line printed is one JSON object.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import signal
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+BIN = Path(sys.executable).parent
+
+
+def read_lines(path: Path) -> list[dict]:
+    if not path.exists():
+        return []
+    return [json.loads(x) for x in path.read_text().splitlines() if x.strip()]
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser.add_argument("--budget-min", type=float, default=30.0, help="give up after this many minutes")
+    parser.add_argument("--eval-every", type=int, default=500, help="learner updates between evaluations")
+    parser.add_argument("--run-dir", default=None, help="keep the run here (default: a temporary folder)")
+    parser.add_argument("overrides", nargs="*", help="extra Hydra overrides for gvf-train")
+    args = parser.parse_args()
+    run_dir = Path(args.run_dir or tempfile.mkdtemp(prefix="time_to_drive_"))
+    cmd = [str(BIN / "gvf-train"), "agent=gvf_ddpg", "scale=small", "actors.count=2", "progress=false", "run=time_to_drive",
+           f"eval.every_updates={args.eval_every}", f"hydra.run.dir={run_dir}", *args.overrides]
+    start = time.monotonic()
+    proc = subprocess.Popen(cmd, stdout=open(run_dir / "train.out", "wb"), stderr=subprocess.STDOUT, env={**os.environ, "OMP_NUM_THREADS": "1"})
+    best, done_at = None, None
+    try:
+        while time.monotonic() - start < args.budget_min * 60 and proc.poll() is None:
+            time.sleep(5)
+            evals = read_lines(run_dir / "eval.jsonl")
+            if evals:
+                best = max(evals, key=lambda e: e["mean"]["lap_completed"])
+                last = evals[-1]
+                print(f"{(time.monotonic() - start) / 60:5.1f} min  {last['updates']} updates  laps {last['mean']['lap_completed']:.0%}  reward/s {last['mean']['reward_per_s']:.2f}", flush=True)
+                if last["mean"]["lap_completed"] >= 1.0:
+                    done_at = last
+                    break
+    finally:
+        elapsed = (time.monotonic() - start) / 60
+        proc.send_signal(signal.SIGTERM)
+        try:
+            proc.wait(60)
+        except subprocess.TimeoutExpired:
+            proc.kill()
+    progress = json.loads((run_dir / "progress.json").read_text()) if (run_dir / "progress.json").exists() else {}
+    print(json.dumps({
+        "minutes_to_all_test_laps": round(elapsed, 2) if done_at else None,
+        "env_steps": progress.get("inserted"),
+        "updates": progress.get("updates"),
+        "budget_min": args.budget_min,
+        "reached": done_at is not None,
+        "best_lap_fraction": best["mean"]["lap_completed"] if best else 0.0,
+        "best_at_updates": best["updates"] if best else None,
+        "env_steps_per_s": progress.get("env_steps_per_s"),
+        "updates_per_s": progress.get("updates_per_s"),
+        "run_dir": str(run_dir),
+    }))
+
+
+if __name__ == "__main__":
+    main()
