@@ -28,3 +28,8 @@ def test_root_defaults():
 def test_bad_values_are_refused_naming_the_field(override, field):
     with pytest.raises((ConfigCompositionException, ValidationError, ValueError), match=field):
         compose_run([override])
+
+
+def test_reproduction_experiment_composes():
+    run = compose_run(["+experiment=reproduce", "agent=ddpg_lowdim", "seed=2"])
+    assert (run.run, run.max_seconds, run.eval.every_updates, run.agent.name, run.seed) == ("reproduce", 1800.0, 500, "ddpg_lowdim", 2)
