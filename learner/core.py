@@ -12,8 +12,9 @@ discriminator for the incoming transitions and stores them in the shared replay.
   discriminator BCE step on U, half of its actions replaced by eta  (lines 16-17)
   DDPG step on U with phi = [v(s), speed, last action], detached    (section 3)
 
-The three v(.) evaluations without gradient (v(s') on A, phi(s) and phi(s') on U) are one
-batched forward. All losses touch disjoint parameters, so one backward serves them all.
+The three v(.) evaluations without gradient (v(s') on A, phi(s) and phi(s') on U) are the
+only network work beyond one forward/backward per network. All losses touch disjoint
+parameters, so one backward serves them all.
 
 rho refresh (`AgentConfig.refresh_rho`, default off as in the paper): with it, the rho of
 each GVF minibatch is recomputed with the current discriminator after sampling and
@@ -53,7 +54,7 @@ class LearningCore:
 
     def __init__(self, agent: AgentConfig, scale: ScaleConfig, *, device: str = "cpu",
                  seed: int = 0, buffer_size: int | None = None, warmup: int | None = None):
-        torch.manual_seed(seed)
+        torch.manual_seed(seed)  # the global generator initialises the networks
         self.agent, self.scale, self.device = agent, scale, torch.device(device)
         self.batch_size = scale.batch_size
         self.warmup = scale.warmup if warmup is None else warmup
@@ -61,15 +62,16 @@ class LearningCore:
         for module in self.nets.modules().values():
             module.to(self.device)
         self.predictive = self.nets.representation == "predictive"
+        # the replay stays in host memory (torchrl's sum tree is CPU-only); batches move over
         self.replay = ImportanceResamplingReplay(
-            scale.buffer_size if buffer_size is None else buffer_size,
-            device=self.device, seed=seed)
+            scale.buffer_size if buffer_size is None else buffer_size, seed=seed)
         self.generator = torch.Generator().manual_seed(seed)
         if self.predictive:
             self.gammas = expand_gammas(agent.gammas, len(agent.cumulants)).to(self.device)
-            self.gvf_optimizer = torch.optim.Adam(self.nets.gvf.parameters(), lr=agent.lr_gvf)
+            self.gvf_optimizer = torch.optim.Adam(self.nets.gvf.parameters(), lr=agent.lr_gvf,
+                                                  fused=True)
             self.behaviour_optimizer = torch.optim.Adam(
-                self.nets.behaviour.parameters(), lr=agent.lr_behaviour)
+                self.nets.behaviour.parameters(), lr=agent.lr_behaviour, fused=True)
             keys = ["phi"]
         else:
             keys = list(OBS_KEYS)
@@ -102,7 +104,7 @@ class LearningCore:
             self._rho_clipped += int(clipped.sum())
         else:
             rho = torch.ones(transitions.shape[0], 1, device=self.device)
-        self.replay.extend(compact(transitions, rho))
+        self.replay.extend(compact(transitions, rho).to("cpu"))
 
     @property
     def ready(self) -> bool:
@@ -118,7 +120,7 @@ class LearningCore:
         """One combined update; metrics every `metrics_every` updates, else an empty dict."""
         if not self.ready:
             raise RuntimeError(f"warm-up: {len(self.replay)} of {self.warmup} transitions")
-        uniform = expand(self.replay.sample_uniform(self.batch_size))
+        uniform = expand(self.replay.sample_uniform(self.batch_size)).to(self.device)
         losses: dict[str, Tensor] = {}
         if self.predictive:
             ddpg_batch = self._predictive_step(uniform, losses)
@@ -136,14 +138,14 @@ class LearningCore:
 
     def _predictive_step(self, uniform: TensorDictBase, losses: dict[str, Tensor]) -> TensorDict:
         gvf, n = self.nets.gvf, self.batch_size
-        stored = self.replay.sample_by_rho(n)
+        stored = self.replay.sample_by_rho(n).to(self.device)
         if self.agent.refresh_rho:
             self.replay.update_rho(stored["index"], self.rho(stored)[0])
         rho_bar = self.replay.rho_bar
         batch = expand(stored)
-        with torch.no_grad():  # v(s') of A, and phi(s), phi(s') of U, in one forward
-            states = [batch["next"], uniform, uniform["next"]]
-            v = gvf(*(torch.cat(parts) for parts in zip(*map(_obs, states)))).split(n)
+        # v(s') of A, phi(s) and phi(s') of U: three calls, as one 3n batch is slower on CPU
+        with torch.no_grad():
+            v = [gvf(*_obs(td)) for td in (batch["next"], uniform, uniform["next"])]
         target = td_target(cumulants(batch["next"], self.agent.cumulants),
                            batch["next", "terminated"], v[0], self.gammas)
         losses["td"] = gvf_loss(gvf(*_obs(batch)), target, rho_bar)

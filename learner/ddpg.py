@@ -38,8 +38,9 @@ class DDPG:
             delay_actor=True, delay_value=True, loss_function="l2")
         self.loss_module.make_value_estimator(ValueEstimators.TD0, gamma=discount)
         self.target_updater = SoftUpdate(self.loss_module, tau=target_update)
-        self.actor_optimizer = torch.optim.Adam(actor.parameters(), lr=lr_actor)
-        self.critic_optimizer = torch.optim.Adam(critic.parameters(), lr=lr_critic)
+        # fused: one kernel per step instead of one per tensor
+        self.actor_optimizer = torch.optim.Adam(actor.parameters(), lr=lr_actor, fused=True)
+        self.critic_optimizer = torch.optim.Adam(critic.parameters(), lr=lr_critic, fused=True)
 
     def loss(self, batch: TensorDictBase) -> tuple[Tensor, TensorDictBase]:
         """loss_actor + loss_value on a uniform minibatch (their gradients are disjoint)."""

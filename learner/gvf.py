@@ -13,10 +13,12 @@ cumulants at all five discounts, 2 x 5 = 10 predictions, by default (`AgentConfi
 
 Target policy tau ("repeat the last action", paper section 3): a truncated normal on the
 action box centred on the last action, independently per action dimension, with standard
-deviation `tau_width` (default 0.1 in the box's units, i.e. 5% of its width: narrow
-enough to mean "keep the action", wide enough that OU-explored behaviour (stationary std
-0.07) gets non-negligible ratios). rho = tau(a|s) / mu_hat(a|s) (Algorithm 1, line 9),
-clipped to `rho_max`.
+deviation `tau_width` (default 0.1, 5% of the box's width): narrow enough to mean "keep
+the action", wide enough that behaviour actions keep usable ratios (on LaneDrive the
+kinematic controller with OU noise changes its action by about 0.05 (steering) and 0.2
+(target speed) per step). rho = tau(a|s) / mu_hat(a|s) (Algorithm 1, line 9), clipped to
+`rho_max`. Importance resampling corrects the action distribution only, not the state
+distribution (paper, after eq. 2).
 
 TD loss (eqs. 2-5): delta = v(s) - y, y = (1 - gamma) c + gamma_{t+1} v(s') with v(s')
 from the current parameters and no gradient (no target network: tau is fixed). The loss

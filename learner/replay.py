@@ -44,7 +44,8 @@ class ImportanceResamplingReplay:
         self.buffer = TensorDictReplayBuffer(
             storage=LazyTensorStorage(capacity, device=device),
             # float32 tree: torchrl 0.14's float64 tree rejects its own default priority
-            sampler=PrioritizedSampler(capacity, alpha=1.0, beta=0.0, eps=PRIORITY_EPS),
+            sampler=PrioritizedSampler(capacity, alpha=1.0, beta=0.0, eps=PRIORITY_EPS,
+                                       device="cpu"),
             priority_key="rho", generator=self.generator)
         # rho of every slot, the source of the running sum's evictions
         self.rho = torch.zeros(capacity, dtype=torch.float64)
