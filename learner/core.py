@@ -139,10 +139,10 @@ class LearningCore:
     def _predictive_step(self, uniform: TensorDictBase, losses: dict[str, Tensor]) -> TensorDict:
         gvf, n = self.nets.gvf, self.batch_size
         stored = self.replay.sample_by_rho(n).to(self.device)
-        if self.agent.refresh_rho:
-            self.replay.update_rho(stored["index"], self.rho(stored)[0])
-        rho_bar = self.replay.rho_bar
         batch = expand(stored)
+        if self.agent.refresh_rho:
+            self.replay.update_rho(stored["index"], self.rho(batch)[0])
+        rho_bar = self.replay.rho_bar
         # v(s') of A, phi(s) and phi(s') of U: three calls, as one 3n batch is slower on CPU
         with torch.no_grad():
             v = [gvf(*_obs(td)) for td in (batch["next"], uniform, uniform["next"])]

@@ -114,15 +114,20 @@ def _first_occurrence(index: Tensor) -> tuple[Tensor, Tensor]:
     return unique, first
 
 
+def _packed(frames: Tensor) -> Tensor:
+    """uint8 frames viewed as int64 (8 pixels a word): the storage's indexed write is ~5x faster."""
+    return frames.contiguous().view(torch.int64)
+
+
 def compact(transitions: TensorDictBase, rho: Tensor) -> TensorDict:
     """Storage layout of a batch of LaneDrive transitions (see the module docstring)."""
     nxt = transitions["next"]
     return TensorDict({
-        "image": transitions["image"], "speed": transitions["speed"],
+        "image": _packed(transitions["image"]), "speed": transitions["speed"],
         "last_action": transitions["last_action"],
         "alpha": transitions["alpha"], "beta": transitions["beta"],
         "action": transitions["action"],
-        "next_frame": nxt["image"][:, :1], "next_speed": nxt["speed"],
+        "next_frame": _packed(nxt["image"][:, :1]), "next_speed": nxt["speed"],
         "next_alpha": nxt["alpha"], "next_beta": nxt["beta"],
         "reward": nxt["reward"], "terminated": nxt["terminated"].bool(),
         "truncated": nxt["truncated"].bool(),
@@ -133,12 +138,13 @@ def compact(transitions: TensorDictBase, rho: Tensor) -> TensorDict:
 def expand(stored: TensorDictBase) -> TensorDict:
     """Back to torchrl's convention: the next image is [new frame, frame t]."""
     done = stored["terminated"] | stored["truncated"]
+    image = stored["image"].view(torch.uint8)
     return TensorDict({
-        "image": stored["image"], "speed": stored["speed"],
+        "image": image, "speed": stored["speed"],
         "last_action": stored["last_action"],
         "alpha": stored["alpha"], "beta": stored["beta"], "action": stored["action"],
         "next": {
-            "image": torch.cat([stored["next_frame"], stored["image"][:, :1]], 1),
+            "image": torch.cat([stored["next_frame"].view(torch.uint8), image[:, :1]], 1),
             "speed": stored["next_speed"], "last_action": stored["action"],
             "alpha": stored["next_alpha"], "beta": stored["next_beta"],
             "reward": stored["reward"], "terminated": stored["terminated"],

@@ -116,7 +116,7 @@ def test_gvf_batch_is_drawn_by_rho_and_scaled_by_rho_bar_the_others_uniformly(da
     # discriminator and DDPG batches ignore rho: uniform over 300 items, so mostly distinct
     assert len(torch.unique(seen["behaviour_speed"])) > TINY.batch_size // 2
     assert len(torch.unique(seen["ddpg_phi"], dim=0)) > TINY.batch_size // 2
-    stored = core.replay.buffer.storage.get(torch.tensor([17]))
+    stored = expand(core.replay.buffer.storage.get(torch.tensor([17])))
     assert torch.allclose(seen["predictions"], seen["predictions"][:1].expand_as(seen["predictions"]))
     assert seen["rho_bar"] == pytest.approx(3.0 / 300, rel=1e-9)
     with torch.no_grad():  # the batch's state is item 17's (the weights moved one small step)
