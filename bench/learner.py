@@ -10,8 +10,9 @@ actor, critic) on one fixed batch, no optimiser step.
 that the algorithm itself needs (v(s') for the TD target, phi(s) and phi(s') for DDPG):
 full / (bare + those) is the overhead of everything that is not network arithmetic.
 
-Timing alternates full and bare in rounds and reports medians over rounds, so that load
-from other processes hits both alike. The last line printed is one JSON object.
+Timing alternates full and bare in many short rounds and reports medians over rounds (of
+rates, and of the per-round ratios), so that load from other processes hits both alike.
+The last line printed is one JSON object.
 
     python bench/learner.py [--device cpu|cuda] [--threads N] [--rounds R]
 """
@@ -77,7 +78,7 @@ class Bench:
         self.inserts = [random_transitions(scale.batch_size // SAMPLES_PER_INSERT, g).to(device)
                         for _ in range(8)]
         n = scale.batch_size
-        self.batch = expand(self.core.replay.sample_uniform(n))
+        self.batch = expand(self.core.replay.sample_uniform(n)).to(device)
         nets = self.core.nets
         with torch.no_grad():
             v = nets.gvf(self.batch["image"], self.batch["speed"], self.batch["last_action"])
@@ -133,12 +134,12 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--device", default="cpu", choices=["cpu", "cuda"])
     parser.add_argument("--threads", type=int, default=os.cpu_count())
-    parser.add_argument("--rounds", type=int, default=5)
+    parser.add_argument("--rounds", type=int, default=15)
     args = parser.parse_args()
     if args.device == "cuda" and not torch.cuda.is_available():
         parser.error("--device cuda: no CUDA device available")
     torch.set_num_threads(args.threads)
-    per_round = {"small": 4, "paper": 2} if args.device == "cpu" else {"small": 20, "paper": 20}
+    per_round = {"small": 2, "paper": 1} if args.device == "cpu" else {"small": 10, "paper": 10}
     result: dict[str, object] = {"device": args.device, "threads": args.threads,
                                  "batch_size": 128,
                                  "inserts_per_update": 128 // SAMPLES_PER_INSERT}

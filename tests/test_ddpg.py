@@ -78,11 +78,12 @@ def test_ddpg_learns_pendulum_from_low_dim_state():
     replay = ImportanceResamplingReplay(50_000, seed=0)
     noise = OrnsteinUhlenbeck(1, 1, theta=0.15, sigma=0.3, dt=1.0, seed=0)
     obs, _ = env.reset(seed=0)
+    rng = np.random.default_rng(0)
     for step in range(15_000):
         with torch.no_grad():
             action = ddpg.actor(torch.as_tensor(obs)[None]).numpy()[0]
         if step < 1000:
-            action = np.random.uniform(-1, 1, 1).astype(np.float32)
+            action = rng.uniform(-1, 1, 1).astype(np.float32)
         action = np.clip(action + noise.sample()[0], -1, 1)
         next_obs, reward, terminated, truncated, _ = env.step(2.0 * action)
         replay.extend(TensorDict({

@@ -150,3 +150,18 @@ def test_importance_resampling_converges_to_the_true_out_of_policy_values():
     # values lie in [-4/3, 4/3]; the behaviour-policy values differ from tau's by up to ~1
     assert corrected < 0.01, corrected
     assert plain > 0.3, plain
+
+
+def test_recorded_returns_for_the_held_out_metric():
+    from learner.metrics import recorded_returns
+
+    c = torch.tensor([[1.0], [2.0], [3.0]])
+    gammas = expand_gammas([0.0, 0.5], 1)
+    end = torch.tensor([False, False, True])
+    returns, valid = recorded_returns(c, end, end, gammas)
+    assert torch.allclose(returns, torch.tensor([[1.0, 1.375], [2.0, 1.75], [3.0, 1.5]]))
+    assert valid.all()  # terminated: nothing is cut off
+    returns, valid = recorded_returns(c, torch.zeros(3, dtype=torch.bool), end, gammas,
+                                      tail_tol=0.2)
+    assert torch.allclose(returns[:, 1], torch.tensor([1.375, 1.75, 1.5]))
+    assert valid[:, 0].all() and valid[:, 1].tolist() == [True, False, False]  # 0.5^k tail

@@ -71,6 +71,20 @@ def test_every_variant_trains_all_its_networks(variant, data):
         assert torch.equal(acting(data[:5]), core.nets.policy(data[:5]))
 
 
+@pytest.mark.parametrize("variant", list(VARIANTS))
+def test_every_variant_updates_on_recorded_lanedrive_transitions(variant):
+    pytest.importorskip("actors.envs")
+    from tests.lanedrive_rollouts import collect as collect_lanedrive
+
+    recorded = collect_lanedrive(2, 120, seed=len(variant))
+    core = make_core(variant)
+    core.add(recorded)
+    metrics = {}
+    while not metrics:
+        metrics = core.update()
+    assert all(torch.isfinite(torch.tensor(v)) for v in metrics.values()), metrics
+
+
 def test_rho_at_insert_is_tau_over_mu_hat_and_clips_are_counted(data):
     core = make_core("gvf_ddpg", rho_max=20.0)
     batch = data[:64]
