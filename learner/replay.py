@@ -12,7 +12,8 @@ tree (torchrl `PrioritizedSampler`, alpha = 1, beta = 0, priority = rho), so tha
 
 The storage layout of a LaneDrive transition is compact: the next observation's previous
 frame is the current frame and its last action is the action, so only the new frame is
-stored (`compact` / `expand`, 24 KiB instead of 32 KiB per transition).
+stored (`compact` / `expand`, 24 KiB instead of 32 KiB per transition), and frames are
+stored as int64 views of their bytes (8 pixels a word), which torchrl writes ~5x faster.
 
 Input transitions use torchrl's convention, a TensorDict of batch (B,) with
   image uint8 (B, 2, 64, 128) [frame t, frame t-1], speed (B, 1), last_action (B, 2),
