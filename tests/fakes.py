@@ -67,7 +67,9 @@ class FakeLaneDrive:
         self.phase[mask] = self.rng.uniform(0, 2 * np.pi, (k, 3))
         self.last_action[mask] = 0.0
         self.frame[mask] = self.render()[mask]
-        self.prev = self.frame.copy()
+        if not hasattr(self, "prev"):
+            self.prev = self.frame.copy()
+        self.prev[mask] = self.frame[mask]  # a fresh episode starts with two equal frames
 
     def curvature(self, s: np.ndarray) -> np.ndarray:
         """Smooth random road: curvature (1/m) at arc length s, per car (broadcast on s)."""
