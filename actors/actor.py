@@ -146,20 +146,13 @@ def run_actor(cfg: RunConfig, transport=None, stop: threading.Event | None = Non
 
 def task(cfg) -> None:
     """Hydra task of `gvf-actor`."""
-    from common.cli import stop_on_signals
+    from common.cli import run_role
     from common.config.run import to_objects
 
     run, _, _ = to_objects(cfg)
-    logging.basicConfig(level=logging.INFO, format="%(asctime)s %(name)s %(levelname)s %(message)s")
-    stop = stop_on_signals()
-    try:
-        stats = run_actor(run, stop=stop)
-    except ConnectionError:
-        if not stop.is_set():
-            raise
-        log.info("stopped while waiting for a router")
-        return
-    print(json.dumps(stats), flush=True)  # last line: the actor's counters, for scripts and tests
+    stats = run_role(lambda stop: run_actor(run, stop=stop))
+    if stats is not None:
+        print(json.dumps(stats), flush=True)  # last line: the actor's counters, for scripts and tests
 
 
 def main() -> None:

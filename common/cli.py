@@ -7,7 +7,9 @@ import logging
 import signal
 import threading
 from pathlib import Path
-from typing import Callable
+from typing import Callable, TypeVar
+
+T = TypeVar("T")
 
 CONF_DIR = str(Path(__file__).resolve().parents[1] / "conf")
 
@@ -25,6 +27,20 @@ def stop_on_signals() -> threading.Event:
     signal.signal(signal.SIGINT, handler)
     signal.signal(signal.SIGTERM, handler)
     return stop
+
+
+def run_role(body: Callable[[threading.Event], T]) -> T | None:
+    """Run a role with logging and a stop event set by SIGINT/SIGTERM; being stopped while still
+    waiting for a router is a clean exit (None), not a crash."""
+    logging.basicConfig(level=logging.INFO, format="%(asctime)s %(name)s %(levelname)s %(message)s")
+    stop = stop_on_signals()
+    try:
+        return body(stop)
+    except ConnectionError:
+        if not stop.is_set():
+            raise
+        logging.getLogger(__name__).info("stopped while waiting for a router")
+        return None
 
 
 def hydra_entry(task: Callable, config_name: str = "config") -> Callable[[], None]:

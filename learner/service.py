@@ -259,18 +259,12 @@ def task(cfg) -> None:
     """Hydra task of `gvf-learner`."""
     from hydra.core.hydra_config import HydraConfig
 
-    from common.cli import stop_on_signals
+    from common.cli import run_role
     from common.config.run import to_objects
 
     run, _, _ = to_objects(cfg)
-    logging.basicConfig(level=logging.INFO, format="%(asctime)s %(name)s %(levelname)s %(message)s")
-    stop = stop_on_signals()
-    try:
-        run_learner(run, None, HydraConfig.get().runtime.output_dir, stop)
-    except ConnectionError:
-        if not stop.is_set():
-            raise
-        log.info("stopped while waiting for a router")
+    run_dir = HydraConfig.get().runtime.output_dir
+    run_role(lambda stop: run_learner(run, None, run_dir, stop))
 
 
 def main() -> None:

@@ -53,6 +53,13 @@ class Run:
         args = [*self.args, f"actor.name={name}", f"hydra.run.dir={self.tmp}/{name}", *extra]
         self.procs[name] = script("gvf-actor", args, self.tmp / f"{name}.log")
 
+    def start(self):
+        """Router, learner and one actor, until the learner has trained."""
+        self.router()
+        self.learner()
+        self.actor()
+        wait_for(self.progress, lambda p: p["updates"] > 0, 150, "first updates")
+
     @property
     def progress(self):
         return self.tmp / "learner" / "progress.json"
@@ -90,10 +97,7 @@ def hostile_payloads():
 def test_hostile_messages_are_counted_and_dropped_while_training_goes_on(tmp_path):
     run = Run(tmp_path)
     try:
-        run.router()
-        run.learner()
-        run.actor()
-        wait_for(run.progress, lambda p: p["updates"] > 0, 120, "first updates")
+        run.start()
         conf = zenoh.Config.from_json5(json.dumps({"mode": "client", "connect": {"endpoints": [run.endpoint]}, "scouting": {"multicast": {"enabled": False}}}))
         with zenoh.open(conf) as session:
             pub = session.declare_publisher("gvf/faults/transitions/evil", congestion_control=zenoh.CongestionControl.BLOCK)
@@ -111,9 +115,7 @@ def test_hostile_messages_are_counted_and_dropped_while_training_goes_on(tmp_pat
 def test_learner_killed_and_resumed_from_checkpoint_while_actor_keeps_running(tmp_path):
     run = Run(tmp_path, ["learner.checkpoint_every=20"])
     try:
-        run.router()
-        run.learner()
-        run.actor()
+        run.start()
         wait_for(run.progress, lambda p: p["updates"] >= 45, 150, "updates before the kill")
         os.kill(run.procs["learner"].pid, signal.SIGKILL)
         run.procs["learner"].wait(10)
@@ -133,9 +135,7 @@ def test_learner_killed_and_resumed_from_checkpoint_while_actor_keeps_running(tm
 def test_router_restart_resumes_traffic_and_lost_chunks_are_counted_exactly(tmp_path):
     run = Run(tmp_path)
     try:
-        run.router()
-        run.learner()
-        run.actor()
+        run.start()
         wait_for(run.progress, lambda p: p["chunks"] > 20, 120, "traffic before the restart")
         os.kill(run.procs["router"].pid, signal.SIGKILL)
         run.procs["router"].wait(10)
