@@ -35,6 +35,7 @@ def main() -> None:
     parser.add_argument("overrides", nargs="*", help="extra Hydra overrides for gvf-train")
     args = parser.parse_args()
     run_dir = Path(args.run_dir or tempfile.mkdtemp(prefix="time_to_drive_"))
+    run_dir.mkdir(parents=True, exist_ok=True)
     cmd = [str(BIN / "gvf-train"), "agent=gvf_ddpg", "scale=small", "actors.count=2", "progress=false", "run=time_to_drive",
            f"eval.every_updates={args.eval_every}", f"hydra.run.dir={run_dir}", *args.overrides]
     start = time.monotonic()
