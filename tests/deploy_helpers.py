@@ -1,0 +1,115 @@
+"""Helpers shared by the deploy tests: certificates, a router in a spawned process, clients, gvfctl."""
+
+from __future__ import annotations
+
+import multiprocessing as mp
+import queue
+import shutil
+import socket
+import subprocess
+import sys
+import time
+from contextlib import contextmanager
+from pathlib import Path
+
+import pytest
+import zenoh
+
+from common.config.transport import TransportConfig
+from common.zenoh_transport import open_router, zenoh_config
+
+
+REPO = Path(__file__).resolve().parents[1]
+DEPLOY = REPO / "deploy"
+ZENOH_DIR = DEPLOY / "zenoh"
+UNITS = DEPLOY / "systemd"
+CTX = mp.get_context("spawn")
+CONSOLE_SCRIPTS = {"gvf-router", "gvf-learner", "gvf-actor", "gvf-train", "gvf-eval"}
+CERT_DIR_IN_CONFIGS = "/etc/gvf/tls"
+PY = sys.executable
+
+
+
+# --- helpers ----------------------------------------------------------------------------------
+
+def free_port(host: str = "127.0.0.1") -> int:
+    with socket.socket() as s:
+        s.bind((host, 0))
+        return s.getsockname()[1]
+
+
+def patched(name: str, certs: Path, dest: Path, **replace: str) -> Path:
+    """deploy/zenoh/<name> with its certificate paths pointed at `certs` (and other text replaced)."""
+    text = (ZENOH_DIR / name).read_text().replace(CERT_DIR_IN_CONFIGS, str(certs))
+    for old, new in replace.items():
+        assert old in text, f"{old!r} not in {name}"
+        text = text.replace(old, new)
+    path = dest / name
+    path.write_text(text)
+    return path
+
+
+def _router(cfg: TransportConfig, ready, stop) -> None:
+    """Child process: the run's router, as gvf-router opens it, until `stop`."""
+    with open_router(cfg):
+        ready.set()
+        stop.wait(120)
+
+
+@contextmanager
+def router_process(config_file: Path | None, endpoints: list[str]):
+    ready, stop = CTX.Event(), CTX.Event()
+    cfg = TransportConfig(router_listen=endpoints, zenoh_config_file=str(config_file) if config_file else None)
+    proc = CTX.Process(target=_router, args=(cfg, ready, stop), daemon=True)
+    proc.start()
+    try:
+        assert ready.wait(30), "router did not start"
+        yield
+    finally:
+        stop.set()
+        proc.join(15)
+        if proc.is_alive():
+            proc.kill()
+            proc.join(5)
+
+
+def client(config_file: Path | None, endpoint: str, timeout_s: float = 10.0) -> zenoh.Session:
+    cfg = TransportConfig(mode="client", connect=[endpoint], connect_timeout_s=timeout_s,
+                          zenoh_config_file=str(config_file) if config_file else None)
+    return zenoh.open(zenoh_config(cfg))
+
+
+def round_trip(config_file: Path | None, endpoint: str) -> bytes:
+    """One put from one client session to a subscriber in another, through the router."""
+    got: queue.Queue[bytes] = queue.Queue()
+    with client(config_file, endpoint) as sender, client(config_file, endpoint) as receiver:
+        receiver.declare_subscriber("deploy-test/x", lambda s: got.put(s.payload.to_bytes()))
+        pub = sender.declare_publisher("deploy-test/x", congestion_control=zenoh.CongestionControl.BLOCK)
+        deadline = time.monotonic() + 10
+        while not pub.matching_status.matching and time.monotonic() < deadline:
+            time.sleep(0.01)
+        pub.put(b"over tls")
+        payload = got.get(timeout=10)
+        pub.undeclare()
+    return payload
+
+
+def refused(config_file: Path | None, endpoint: str) -> bool:
+    try:
+        with client(config_file, endpoint, timeout_s=1.5):
+            return False
+    except zenoh.ZError:
+        return True
+
+
+def gvfctl(*args: str, timeout: float = 60) -> subprocess.CompletedProcess:
+    return subprocess.run([PY, str(DEPLOY / "gvfctl.py"), *args], capture_output=True, text=True, timeout=timeout)
+
+
+@pytest.fixture(scope="module")
+def certs(tmp_path_factory) -> Path:
+    if shutil.which("openssl") is None:
+        pytest.skip("openssl not installed: cannot make test certificates (apt-get install openssl)")
+    out = tmp_path_factory.mktemp("tls") / "certs"
+    subprocess.run(["bash", str(DEPLOY / "make_test_certs.sh"), str(out)], check=True, capture_output=True, timeout=60)
+    return out
