@@ -43,6 +43,7 @@ from learner.metrics import prediction_error
 from learner.replay import ImportanceResamplingReplay, compact, expand
 
 OBS_KEYS = ("image", "speed", "last_action")
+RHO_SLICE = 256
 
 
 def _obs(td: TensorDictBase) -> tuple[Tensor, Tensor, Tensor]:
@@ -99,7 +100,9 @@ class LearningCore:
         """Store a batch of transitions (torchrl convention, see learner.replay) with its rho."""
         transitions = transitions.to(self.device)
         if self.predictive:
-            rho, clipped = self.rho(transitions)
+            # the discriminator's forward costs ~2x less per item in slices of 256 than at 2048 on CPU
+            parts = [self.rho(part) for part in transitions.split(RHO_SLICE)]
+            rho, clipped = torch.cat([r for r, _ in parts]), torch.cat([c for _, c in parts])
             self._rho_seen += clipped.numel()
             self._rho_clipped += int(clipped.sum())
         else:
