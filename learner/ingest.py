@@ -16,19 +16,25 @@ from tensordict import TensorDict
 from common.wire import TransitionChunk
 
 
-def chunks_to_transitions(chunks: list[TransitionChunk]) -> TensorDict:
-    """Concatenate the transitions of several chunks into one batch."""
+def chunks_to_transitions(chunks: list[TransitionChunk], next_image: bool = True) -> TensorDict:
+    """Concatenate the transitions of several chunks into one batch.
+
+    With `next_image=False` the next state carries only its new frame, ("next", "frame")
+    (B, 1, H, W), which is all the replay stores of it: one frame copy per step less.
+    """
     steps = [c.num_steps for c in chunks]
     total = sum(steps)
     # the images straight from each chunk's frames into the batch: no per-chunk stacks and no
     # concatenated copies of them (copying these bytes is most of what this function costs)
     image = np.empty((total, 2, *np.shape(chunks[0].frames)[1:]), np.uint8)
-    next_image = np.empty_like(image)
+    following = np.empty((total, 2 if next_image else 1, *image.shape[2:]), np.uint8)
     start = 0
     for c, n in zip(chunks, steps):
         frames, end = c.frames, start + n
         image[start:end, 0], image[start:end, 1] = frames[1:n + 1], frames[:n]
-        next_image[start:end, 0], next_image[start:end, 1] = frames[2:n + 2], frames[1:n + 1]
+        following[start:end, 0] = frames[2:n + 2]
+        if next_image:
+            following[start:end, 1] = frames[1:n + 1]
         start = end
 
     def cat(get) -> torch.Tensor:
@@ -44,7 +50,7 @@ def chunks_to_transitions(chunks: list[TransitionChunk]) -> TensorDict:
             "beta": cat(lambda c: col(c.beta[:-1])),
             "action": cat(lambda c: c.action),
             "next": {
-                "image": torch.from_numpy(next_image),
+                ("image" if next_image else "frame"): torch.from_numpy(following),
                 "speed": cat(lambda c: c.speed[1:]),
                 "last_action": cat(lambda c: c.action),
                 "alpha": cat(lambda c: col(c.alpha[1:])),

@@ -123,12 +123,13 @@ def _packed(frames: Tensor) -> Tensor:
 def compact(transitions: TensorDictBase, rho: Tensor) -> TensorDict:
     """Storage layout of a batch of LaneDrive transitions (see the module docstring)."""
     nxt = transitions["next"]
+    next_frame = nxt["frame"] if "frame" in nxt.keys() else nxt["image"][:, :1]
     return TensorDict({
         "image": _packed(transitions["image"]), "speed": transitions["speed"],
         "last_action": transitions["last_action"],
         "alpha": transitions["alpha"], "beta": transitions["beta"],
         "action": transitions["action"],
-        "next_frame": _packed(nxt["image"][:, :1]), "next_speed": nxt["speed"],
+        "next_frame": _packed(next_frame), "next_speed": nxt["speed"],
         "next_alpha": nxt["alpha"], "next_beta": nxt["beta"],
         "reward": nxt["reward"], "terminated": nxt["terminated"].bool(),
         "truncated": nxt["truncated"].bool(),

@@ -123,7 +123,7 @@ class LearnerService:
                 self.counters["episodes"] += 1
         if not good:
             return 0
-        batch = chunks_to_transitions(good)
+        batch = chunks_to_transitions(good, next_image=False)  # the replay keeps only the new frame
         self.core.add(batch)
         self.counters["inserted"] += batch.shape[0]
         self.counters["chunks"] += len(good)

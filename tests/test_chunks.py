@@ -8,6 +8,7 @@ from actors.controllers.kinematic import KinematicController
 from actors.envs.lane_drive import LaneDriveVectorEnv
 from common import wire
 from learner.ingest import SequenceTracker, chunks_to_transitions
+from learner.replay import compact
 
 
 def _collect(steps=40, chunk_len=8):
@@ -73,3 +74,12 @@ def test_sequence_tracker_counts_gaps_and_restarts():
     s.see("a", 0)  # actor a restarted
     s.see("a", 2)
     assert (s.lost, s.restarts, s.received) == (2 + 1, 1, 8)  # seqs 3, 4, then 1 after the restart
+
+
+def test_next_frame_only_batches_store_the_same_replay_items():
+    chunks, _ = _collect()
+    full, lean = chunks_to_transitions(chunks), chunks_to_transitions(chunks, next_image=False)
+    assert "image" not in lean["next"].keys() and torch.equal(lean["next", "frame"], full["next", "image"][:, :1])
+    rho = torch.rand(full.shape[0], 1)
+    a, b = compact(full, rho), compact(lean, rho)
+    assert all(torch.equal(a[k], b[k]) for k in a.keys())
