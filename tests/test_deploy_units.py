@@ -10,19 +10,15 @@ import re
 import shutil
 import signal
 import subprocess
-import sys
 import time
 from pathlib import Path
 
 import pytest
 import yaml
-import zenoh
 from omegaconf import open_dict
 
-from common.config.transport import TransportConfig
-from common.zenoh_transport import zenoh_config
 
-from tests.deploy_helpers import free_port, patched, client, gvfctl, certs, REPO, DEPLOY, UNITS, CONSOLE_SCRIPTS, PY  # noqa: F401  (certs is a fixture)
+from tests.deploy_helpers import free_port, patched, certs, REPO, DEPLOY, UNITS, CONSOLE_SCRIPTS, PY  # noqa: F401  (certs is a fixture)
 
 
 # --- systemd units ----------------------------------------------------------------------------

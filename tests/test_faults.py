@@ -9,7 +9,6 @@ import time
 
 import msgpack
 import numpy as np
-import pytest
 import zenoh
 
 from common import wire
