@@ -186,19 +186,19 @@ def test_checkpoint_resumes_to_identical_updates(data):
 
 
 def test_gvf_predictions_on_lanedrive_beat_a_constant_predictor():
-    """Real LaneDrive: kinematic controller + OU noise (sigma 0.3) as behaviour; 250 full
+    """Real LaneDrive: kinematic controller + OU noise (sigma 1.0) as behaviour; 1,000 full
     updates (batch 64, GVF lr 1e-3), data streamed in as in Algorithm 1 so that rho comes
     from a discriminator that is learning. Truth: Monte Carlo returns under tau from 60
     visited states (tests/lanedrive_rollouts.py).
 
-    Tolerances: alpha at gamma 0 and 0.5, RMSE <= 0.5 x that of the best constant (the
-    truth's mean; measured ~0.25). beta (std ~0.04 rad here, ~3 px of image shift) needs
-    thousands of updates to learn from pixels (0.9 x constant after 3,000); it is held only
-    to RMSE <= 1.5 x constant, a bound that catches mixed-up cumulants or scales (those give
-    5-10x), not a learning claim. Long horizons (gamma >= 0.9) are not checked: after a
-    short run they follow the controller's own returns (correlation 0.94-0.98) more than
-    tau's (0.6-0.8), since the controller never shows tau's drift, the discriminator behind
-    rho at insert is still young, and importance resampling corrects actions, not states.
+    sigma 1.0 (stationary std 0.7 of the action range, correlated over ~10 s) makes the road
+    angle vary (std ~0.09 rad; ~0.03 at sigma 0.3, a shift of ~3 px that 1,000 updates do
+    not learn). Tolerances, RMSE against that of the best constant (the truth's mean) at
+    gamma 0 and 0.5: alpha <= 0.5 (measured 0.14-0.22 from 1,000 to 2,000 updates), beta
+    <= 0.75 (measured 0.53-0.64). Long horizons (gamma >= 0.9) are not checked: after a
+    short run they follow the controller's own returns more than tau's, since the controller
+    never shows tau's drift, the discriminator behind rho at insert is still young, and
+    importance resampling corrects actions, not states.
     """
     pytest.importorskip("actors.envs")
     from tests.lanedrive_rollouts import collect as collect_lanedrive
@@ -206,8 +206,8 @@ def test_gvf_predictions_on_lanedrive_beat_a_constant_predictor():
 
     torch.set_num_threads(1)
     gammas = [0.0, 0.5, 0.9, 0.95, 0.97]
-    data = collect_lanedrive(8, 300, seed=0, sigma=0.3)
-    obs, truth = tau_returns(60, gammas, seed=7, sigma=0.3)
+    data = collect_lanedrive(8, 300, seed=0, sigma=1.0)
+    obs, truth = tau_returns(60, gammas, seed=7, sigma=1.0)
     agent = AgentConfig(name="gvf_ddpg", lr_gvf=1e-3, metrics_every=10**9)
     scale = ScaleConfig(name="small", conv_channels=[8, 12, 16, 16, 16], gvf_hidden=[128, 96],
                         behaviour_hidden=[128, 64], policy_hidden=[64, 32], batch_size=64)
@@ -217,7 +217,7 @@ def test_gvf_predictions_on_lanedrive_beat_a_constant_predictor():
         core.add(chunk)
         while core.ready and core.updates < 25 * len(core.replay) // 240:
             core.update()
-    while core.updates < 250:
+    while core.updates < 1000:
         core.update()
     with torch.no_grad():
         predictions = core.nets.gvf(obs["image"], obs["speed"], obs["last_action"])
@@ -226,4 +226,4 @@ def test_gvf_predictions_on_lanedrive_beat_a_constant_predictor():
     ratio = (rmse / constant).reshape(2, len(gammas))
     print(f"RMSE / constant RMSE, rows alpha, beta; columns gammas {gammas}:\n{ratio}")
     assert torch.all(ratio[0, :2] <= 0.5), ratio
-    assert torch.all(ratio[1] <= 1.5), ratio
+    assert torch.all(ratio[1, :2] <= 0.75), ratio
