@@ -3,7 +3,8 @@ transition chunks and episode summaries out, weights and the global track table 
 
     weights <- fetch (query) until the learner answers
     loop: act on all envs, step them together, add each step to its env's chunk,
-          send full/ended chunks and episode summaries, adopt newer weights and track tables.
+          send full/ended chunks and episode summaries, adopt newer weights and track tables;
+          wait while the launcher (control) or the learner's rate limit (flow) says pause.
 
 The simulator never waits on the network longer than `actor.send_timeout_s` (see `Sender`);
 when the learner is gone the actor keeps its last weights, keeps sending (puts go nowhere)
@@ -65,12 +66,13 @@ def run_actor(cfg: RunConfig, transport=None, stop: threading.Event | None = Non
     acting = Acting(cfg.agent, cfg.scale, a, a.num_envs, seed=seed)
     sender = Sender(a.send_queue, a.send_timeout_s)
     rejects = wire.RejectCounter()
-    stats = {"env_steps": 0, "episodes": 0, "chunks": 0, "weights_loaded": 0}
+    stats = {"env_steps": 0, "episodes": 0, "chunks": 0, "weights_loaded": 0, "paused_s": 0.0}
     try:
         t.declare_alive(keys.alive("actor", a.name))
         weights_in = t.subscribe(keys.weights, capacity=1, overflow="drop_old")
         tracks_in = t.subscribe(keys.tracks, capacity=1, overflow="drop_old")
         control_in = t.subscribe(keys.control, capacity=16)
+        flow_in = t.subscribe(keys.flow, capacity=1, overflow="drop_old")
         chunks_out, episodes_out = t.publisher(keys.transitions(a.name)), t.publisher(keys.episodes(a.name))
 
         def poll_weights(block_s: float = 0.0) -> None:
@@ -83,15 +85,18 @@ def run_actor(cfg: RunConfig, transport=None, stop: threading.Event | None = Non
                 stats["weights_loaded"] += 1
 
         paused = False
+        flow_until = 0.0  # the learner's pause holds until then; it expires if the learner falls silent
 
         def poll_control() -> None:
-            nonlocal paused
+            nonlocal paused, flow_until
             for r in control_in.drain(16):
                 msg = rejects.decode(r.payload, expect=wire.Control, key=r.key)
                 if msg is not None:
                     paused = msg.command == "pause" or (paused and msg.command != "resume")
                     if msg.command == "stop":
                         stop.set()
+            if (r := flow_in.get(timeout=0)) is not None and (msg := rejects.decode(r.payload, expect=wire.Control, key=r.key)):
+                flow_until = time.monotonic() + 5 * cfg.learner.flow_refresh_s if msg.command == "pause" else 0.0
 
         while not acting.ready and not stop.is_set():
             poll_weights(block_s=a.weights_poll_s)
@@ -105,8 +110,10 @@ def run_actor(cfg: RunConfig, transport=None, stop: threading.Event | None = Non
         returns = np.zeros(a.num_envs)
         while not stop.is_set():
             poll_control()
-            if paused:
-                time.sleep(0.05)
+            if paused or time.monotonic() < flow_until:
+                waited = time.monotonic()
+                time.sleep(0.02)
+                stats["paused_s"] += time.monotonic() - waited
                 continue
             poll_weights()
             if (r := tracks_in.get(timeout=0)) is not None and (table := rejects.decode(r.payload, expect=wire.TrackTable, key=r.key)):

@@ -9,6 +9,8 @@ All keys live under `gvf/<run>/`. Payloads are the msgpack messages of `common.w
       (also a queryable answered by the learner with the latest Weights: actors `fetch` at start-up)
     gvf/<run>/tracks                      learner      every actor         TrackTable         BLOCK
     gvf/<run>/control                     launcher     learner, actors     Control            BLOCK
+    gvf/<run>/flow                        learner      every actor         Control            BLOCK
+      (pause / resume: the learner's rate limit, so that actors do not outrun samples-per-insert)
     gvf/<run>/alive/<role>/<name>         liveliness token of every process; learner and launcher watch
                                           gvf/<run>/alive/** to know who is alive (role: actor, learner, ...)
 
@@ -92,6 +94,11 @@ class Keys:
         """Launcher's stop / pause / resume commands."""
         return f"{self.root}/control"
 
+    @property
+    def flow(self) -> str:
+        """Learner's pause / resume to the actors: its samples-per-insert rate limit."""
+        return f"{self.root}/flow"
+
     def alive(self, role: str, name: str) -> str:
         """Liveliness token of one process, e.g. alive('actor', 'a3')."""
         return f"{self.root}/alive/{check_name(role, 'role')}/{check_name(name, 'name')}"
@@ -116,6 +123,8 @@ class Keys:
                   "also a queryable: actors fetch the latest at start-up"),
             Route(self.tracks, "learner", "every actor", "TrackTable", "BLOCK"),
             Route(self.control, "launcher", "learner, actors", "Control", "BLOCK"),
+            Route(self.flow, "learner", "every actor", "Control", "BLOCK",
+                  "pause / resume: the learner's rate limit"),
             Route(f"{r}/alive/<role>/<name>", "every process (liveliness)", "learner, launcher",
                   "-", "-", "watch " + self.all_alive()),
         ]

@@ -5,6 +5,7 @@
                gaps, compute rho in one batch and insert (Algorithm 1, lines 8-10)
       train    as many updates as the samples-per-insert ratio allows (rate limit)
       publish  weights every `publish_every` updates (and answer the weights query)
+      flow     pause the actors while more than `max_owed_updates` are owed, resume at half
       tracks   aggregate episode summaries into the global n_i table, publish it
       log      TensorBoard (train/, losses/, actors/, time/) and progress.json for the launcher
       checkpoint every `checkpoint_every` updates and at shutdown (atomic)
@@ -57,7 +58,7 @@ class LearnerService:
         self.tracks: dict[str, int] = {}
         self.returns: deque = deque(maxlen=100)
         self.lags: deque = deque(maxlen=200)
-        self.counters = {"inserted": 0, "episodes": 0, "chunks": 0}
+        self.counters = {"inserted": 0, "episodes": 0, "chunks": 0, "flow_pauses": 0}
         self._ready_at: int | None = None
         self._session_updates = 0
         self._held: dict | None = None
@@ -94,6 +95,8 @@ class LearnerService:
         self.control_in = t.subscribe(k.control, capacity=16)
         self.weights_out, self.weights_srv = t.publisher(k.weights), t.serve_latest(k.weights)
         self.tracks_out = t.publisher(k.tracks)
+        self.flow_out = t.publisher(k.flow)
+        self._flow_paused, self._flow_sent = False, 0.0
         self.alive = t.watch_alive(k.all_alive("actor"))
         t.declare_alive(k.alive("learner", "learner"))
         self.publish_weights()
@@ -162,6 +165,19 @@ class LearnerService:
                 self.save()
         return metrics
 
+    def flow(self, now: float) -> None:
+        """Rate limit on the actors' side: pause them while the learner is far behind the data
+        (which would otherwise pile up, be dropped at the inbox and take CPU from the updates)."""
+        if not self.lc.max_owed_updates:
+            return
+        owed = self.owed_updates()
+        paused = owed > self.lc.max_owed_updates or (self._flow_paused and owed > self.lc.max_owed_updates // 2)
+        if paused != self._flow_paused or now - self._flow_sent >= self.lc.flow_refresh_s:
+            command = "pause" if paused else "resume"
+            self.flow_out.put(wire.encode(wire.Control(command, reason=f"{owed} updates owed")))
+            self.counters["flow_pauses"] += int(paused and not self._flow_paused)
+            self._flow_paused, self._flow_sent = paused, now
+
     # -- the loop -------------------------------------------------------------------------
     def run(self, stop: threading.Event) -> dict:
         self.open()
@@ -184,6 +200,7 @@ class LearnerService:
                 if n == 0 and t2 - t1 < 1e-3:
                     time.sleep(0.005)  # nothing arrived and nothing owed
                 now = time.monotonic()
+                self.flow(now)
                 if now - last_tracks >= self.lc.track_table_every_s and self.tracks:
                     self.tracks_out.put(wire.encode(wire.TrackTable(self.core.updates, dict(self.tracks))))
                     last_tracks = now
@@ -216,6 +233,8 @@ class LearnerService:
             "actors_alive": len(self.alive.alive()),
             "actors_seen": sorted(self.seq.expected),
             "policy_version": self.core.updates,
+            "flow_paused": self._flow_paused,
+            "flow_pauses": self.counters["flow_pauses"],
         }
 
     def log(self, metrics: dict, dt: float, updates_per_s: float, inserts_per_s: float, ingest_frac: float, train_frac: float) -> None:
@@ -233,6 +252,7 @@ class LearnerService:
         w.add_scalar("actors/lost_chunks", p["lost_chunks"], step)
         w.add_scalar("actors/rejected", p["rejected"], step)
         w.add_scalar("actors/inbox_dropped", p["inbox_dropped"], step)
+        w.add_scalar("actors/flow_paused", float(p["flow_paused"]), step)
         for key in ("return_mean", "policy_lag"):
             if p[key] is not None:
                 w.add_scalar(f"actors/{key}", p[key], step)

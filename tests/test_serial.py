@@ -14,3 +14,18 @@ def test_serial_run_trains_and_actor_policy_version_rises(tmp_path):
     assert result["rejected"] == 0 and result["lost_chunks"] == 0
     assert result["policy_lag"] is not None
     assert (tmp_path / "checkpoints").is_dir() and any((tmp_path / "tb").iterdir())
+
+
+def test_learner_rate_limit_pauses_the_actors_instead_of_piling_up_data(tmp_path):
+    """samples_per_insert 64 at batch 32: each transition owes 2 updates, far more than a tiny
+    learner keeps up with. With the flow limit the actor waits for the updates; without it
+    the actor runs ahead."""
+    base = [*TINY, "serial=true", "actors.count=1", "learner.samples_per_insert=64",
+            "learner.max_updates=150", "max_seconds=90"]
+    on = run_serial(compose_run([*base, "learner.max_owed_updates=8"]), str(tmp_path / "on"), threading.Event())
+    off = run_serial(compose_run([*base, "learner.max_owed_updates=0"]), str(tmp_path / "off"), threading.Event())
+    assert on["updates"] >= 150 and off["updates"] >= 150
+    assert on["flow_pauses"] >= 1 and off["flow_pauses"] == 0
+    # the actor runs free during the warm-up and the learner's first updates (~600 transitions
+    # here), then waits; without the limit it keeps going (~3,300)
+    assert off["inserted"] > 3 * on["inserted"], (on, off)
