@@ -5,7 +5,8 @@
                gaps, compute rho in one batch and insert (Algorithm 1, lines 8-10)
       train    as many updates as the samples-per-insert ratio allows (rate limit)
       publish  weights every `publish_every` updates (and answer the weights query)
-      flow     pause the actors while more than `max_owed_updates` are owed, resume at half
+      flow     pause the actors while the data (ingested or in the inbox) is more than
+               `max_owed_updates` updates ahead of the ratio (or of the warm-up); resume at half
       tracks   aggregate episode summaries into the global n_i table, publish it
       log      TensorBoard (train/, losses/, actors/, time/) and progress.json for the launcher
       checkpoint every `checkpoint_every` updates and at shutdown (atomic)
@@ -158,6 +159,7 @@ class LearnerService:
         for _ in range(min(self.owed_updates(), max_updates)):
             metrics = self.core.update() or metrics
             self._session_updates += 1
+            self.flow(time.monotonic())  # a long run of updates must keep the pause fresh
             u = self.core.updates
             if u % self.lc.publish_every == 0:
                 self.publish_weights()
@@ -165,16 +167,25 @@ class LearnerService:
                 self.save()
         return metrics
 
+    def data_ahead(self) -> float:
+        """Transitions ingested or waiting in the inbox beyond what the learner needs now: the
+        warm-up, then `batch / samples_per_insert` per update done."""
+        have = self.counters["inserted"] + len(self.chunks_in) * self.cfg.actor.chunk_len
+        if self._ready_at is None:
+            return have - max(self.core.warmup, 1)
+        return have - self._ready_at - self._session_updates * self.core.batch_size / self.lc.samples_per_insert
+
     def flow(self, now: float) -> None:
         """Rate limit on the actors' side: pause them while the learner is far behind the data
         (which would otherwise pile up, be dropped at the inbox and take CPU from the updates)."""
         if not self.lc.max_owed_updates:
             return
-        owed = self.owed_updates()
-        paused = owed > self.lc.max_owed_updates or (self._flow_paused and owed > self.lc.max_owed_updates // 2)
+        limit = self.lc.max_owed_updates * self.core.batch_size / self.lc.samples_per_insert
+        ahead = self.data_ahead()
+        paused = ahead > limit or (self._flow_paused and ahead > limit / 2)
         if paused != self._flow_paused or now - self._flow_sent >= self.lc.flow_refresh_s:
             command = "pause" if paused else "resume"
-            self.flow_out.put(wire.encode(wire.Control(command, reason=f"{owed} updates owed")))
+            self.flow_out.put(wire.encode(wire.Control(command, reason=f"{ahead:.0f} transitions ahead")))
             self.counters["flow_pauses"] += int(paused and not self._flow_paused)
             self._flow_paused, self._flow_sent = paused, now
 

@@ -26,6 +26,7 @@ def test_learner_rate_limit_pauses_the_actors_instead_of_piling_up_data(tmp_path
     off = run_serial(compose_run([*base, "learner.max_owed_updates=0"]), str(tmp_path / "off"), threading.Event())
     assert on["updates"] >= 150 and off["updates"] >= 150
     assert on["flow_pauses"] >= 1 and off["flow_pauses"] == 0
-    # the actor runs free during the warm-up and the learner's first updates (~600 transitions
-    # here), then waits; without the limit it keeps going (~3,300)
-    assert off["inserted"] > 3 * on["inserted"], (on, off)
+    needed = 64 + 150 * 32 / 64  # the warm-up, then batch / samples_per_insert per update
+    # chunks (16 steps x 2 envs) sent before the pause arrives still land; measured 140
+    assert on["inserted"] <= needed + 4 * 32, on
+    assert off["inserted"] > 3 * on["inserted"], (on, off)  # measured 2,400

@@ -90,7 +90,7 @@ class LearnerConfig:
     torch_threads: int = 1
     """Torch threads on CPU."""
     max_owed_updates: int = 64
-    """Ask the actors to pause while more updates than this are owed (data ahead of samples_per_insert); 0: never."""
+    """Ask the actors to pause while the data (ingested or in the inbox) is more than this many updates ahead of samples_per_insert (or of the warm-up); 0: never."""
     flow_refresh_s: float = 1.0
     """Seconds between repeats of the learner's pause / resume (late actors learn it; a stale pause expires)."""
 
