@@ -34,7 +34,7 @@ import torch
 from tensordict import TensorDict, TensorDictBase
 from torch import Tensor
 
-from common.config.agent import AgentConfig, ScaleConfig
+from common.config.agent import AgentConfig, ScaleConfig, step_sizes
 from common.networks import make_networks, phi
 from learner.behaviour import behaviour_loss, log_mu_hat
 from learner.ddpg import DDPG
@@ -67,12 +67,13 @@ class LearningCore:
         self.replay = ImportanceResamplingReplay(
             scale.buffer_size if buffer_size is None else buffer_size, seed=seed)
         self.generator = torch.Generator().manual_seed(seed)
+        self.step_sizes = steps = step_sizes(agent, scale)
         if self.predictive:
             self.gammas = expand_gammas(agent.gammas, len(agent.cumulants)).to(self.device)
-            self.gvf_optimizer = torch.optim.Adam(self.nets.gvf.parameters(), lr=agent.lr_gvf,
+            self.gvf_optimizer = torch.optim.Adam(self.nets.gvf.parameters(), lr=steps["lr_gvf"],
                                                   fused=True)
             self.behaviour_optimizer = torch.optim.Adam(
-                self.nets.behaviour.parameters(), lr=agent.lr_behaviour, fused=True)
+                self.nets.behaviour.parameters(), lr=steps["lr_behaviour"], fused=True)
             keys = ["phi"]
         else:
             keys = list(OBS_KEYS)
@@ -80,8 +81,8 @@ class LearningCore:
         self.ddpg = DDPG(self.nets.actor, self.nets.critic,
                          actor_in_keys=keys + lowdim,
                          critic_in_keys=keys + ["action"] + lowdim,
-                         discount=agent.discount, target_update=agent.target_update,
-                         lr_actor=agent.lr_actor, lr_critic=agent.lr_critic)
+                         discount=steps["discount"], target_update=steps["target_update"],
+                         lr_actor=steps["lr_actor"], lr_critic=steps["lr_critic"])
         self.updates = 0
         self.held_out: TensorDictBase | None = None
         self._rho_seen = 0

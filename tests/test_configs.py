@@ -33,3 +33,16 @@ def test_bad_values_are_refused_naming_the_field(override, field):
 def test_reproduction_experiment_composes():
     run = compose_run(["+experiment=reproduce", "agent=ddpg_lowdim", "seed=2"])
     assert (run.run, run.max_seconds, run.eval.every_updates, run.agent.name, run.seed) == ("reproduce", 1800.0, 500, "ddpg_lowdim", 2)
+
+
+def test_step_sizes_come_from_the_scale_unless_the_agent_sets_them():
+    from common.config.agent import step_sizes
+
+    paper = compose_run(["scale=paper"])
+    assert step_sizes(paper.agent, paper.scale) == {
+        "discount": 0.99, "target_update": 0.001, "lr_actor": 1e-6, "lr_critic": 1e-4, "lr_gvf": 1e-4, "lr_behaviour": 1e-4}
+    small = compose_run(["scale=small"])
+    assert step_sizes(small.agent, small.scale)["lr_actor"] == small.scale.lr_actor != 1e-6
+    mine = compose_run(["scale=small", "agent.lr_actor=0.5"])
+    assert step_sizes(mine.agent, mine.scale)["lr_actor"] == 0.5
+    assert step_sizes(mine.agent, mine.scale)["lr_critic"] == small.scale.lr_critic

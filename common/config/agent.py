@@ -1,15 +1,18 @@
 """Config schemas of the `agent` and `scale` groups (Hydra structured configs).
 
 `AgentConfig` holds what the paper fixes per algorithm variant (appendix, "GVF-DDPG
-Training" and "Baseline DDPG Training"); `ScaleConfig` holds network widths and replay
-sizes, `paper` being the appendix's sizes and `small` a CPU-sized version of the same
-shapes. The YAML files in `conf/agent/` and `conf/scale/` fill these in; `register()` puts
+Training" and "Baseline DDPG Training"); `ScaleConfig` holds network widths, replay sizes
+and step sizes, `paper` being the appendix's values and `small` a CPU-sized version of the
+same shapes with larger steps (the paper's actor rate of 1e-6 assumes millions of updates;
+a 2-core machine does a few thousand in 30 minutes). A value set on the agent
+(`agent.lr_actor=...`) overrides the scale's; `step_sizes` resolves them. The YAML files in `conf/agent/` and `conf/scale/` fill these in; `register()` puts
 the schemas in Hydra's ConfigStore under `agent/agent_schema` and `scale/scale_schema`.
 """
 
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from typing import Optional
 
 from omegaconf import MISSING
 
@@ -33,18 +36,18 @@ class AgentConfig:
     """Importance ratios rho are clipped to this maximum before entering the replay."""
     refresh_rho: bool = False
     """Recompute rho of each GVF minibatch with the current discriminator (the paper computes it once, at insert)."""
-    discount: float = 0.99
-    """DDPG discount of the reward (not stated in the paper)."""
-    target_update: float = 0.001
-    """Soft target-network update rate of DDPG's actor and critic (paper: 0.001)."""
-    lr_actor: float = 1e-6
-    """Actor (policy) learning rate (paper: 1e-6)."""
-    lr_critic: float = 1e-4
-    """Critic (action-value) learning rate (paper: 1e-4)."""
-    lr_gvf: float = 1e-4
-    """GVF predictor learning rate (paper: 1e-4)."""
-    lr_behaviour: float = 1e-4
-    """Behaviour discriminator learning rate (paper: 1e-4)."""
+    discount: Optional[float] = None
+    """DDPG discount of the reward (not stated in the paper); None: the scale's."""
+    target_update: Optional[float] = None
+    """Soft target-network update rate of DDPG's actor and critic; None: the scale's (paper: 0.001)."""
+    lr_actor: Optional[float] = None
+    """Actor (policy) learning rate; None: the scale's (paper: 1e-6)."""
+    lr_critic: Optional[float] = None
+    """Critic (action-value) learning rate; None: the scale's (paper: 1e-4)."""
+    lr_gvf: Optional[float] = None
+    """GVF predictor learning rate; None: the scale's (paper: 1e-4)."""
+    lr_behaviour: Optional[float] = None
+    """Behaviour discriminator learning rate; None: the scale's (paper: 1e-4)."""
     actor_squash: str = "clip"
     """Actor output squashing: clip (paper: linear then clip to [-1, 1]) or tanh."""
     metrics_every: int = 100
@@ -73,6 +76,27 @@ class ScaleConfig:
     """Replay capacity in transitions (paper: 100,000)."""
     warmup: int = 10_000
     """Transitions in the replay before the first update (paper: 10,000)."""
+    discount: float = 0.99
+    """DDPG discount of the reward (not stated in the paper)."""
+    target_update: float = 0.001
+    """Soft target-network update rate of DDPG's actor and critic (paper: 0.001)."""
+    lr_actor: float = 1e-6
+    """Actor (policy) learning rate (paper: 1e-6)."""
+    lr_critic: float = 1e-4
+    """Critic (action-value) learning rate (paper: 1e-4)."""
+    lr_gvf: float = 1e-4
+    """GVF predictor learning rate (paper: 1e-4)."""
+    lr_behaviour: float = 1e-4
+    """Behaviour discriminator learning rate (paper: 1e-4)."""
+
+
+STEP_SIZES = ("discount", "target_update", "lr_actor", "lr_critic", "lr_gvf", "lr_behaviour")
+
+
+def step_sizes(agent: AgentConfig, scale: ScaleConfig) -> dict[str, float]:
+    """Learning rates, soft-update rate and discount in force: the agent's where set, else the scale's."""
+    return {name: getattr(scale, name) if getattr(agent, name) is None else getattr(agent, name)
+            for name in STEP_SIZES}
 
 
 def register() -> None:

@@ -87,7 +87,7 @@ class LearnerConfig:
     """Chunks waiting to be ingested before new ones are dropped (and counted); bounds memory."""
     max_updates: int = 0
     """Stop after this many updates (0: run until stopped)."""
-    torch_threads: int = 1
+    torch_threads: int = 2
     """Torch threads on CPU."""
     max_owed_updates: int = 64
     """Ask the actors to pause while the data (ingested or in the inbox) is more than this many updates ahead of samples_per_insert (or of the warm-up); 0: never."""
