@@ -25,7 +25,7 @@ def test_kinematic_controller_laps_every_test_road_with_no_near_out_of_lane(tmp_
     assert all((tmp_path / f).stat().st_size > 1000 for f in FIGURES)
 
 
-def test_short_training_then_eval_of_its_checkpoint_writes_table_figures_and_curves(tmp_path):
+def test_short_training_then_eval_and_comparison_of_its_checkpoint_write_tables_figures_and_curves(tmp_path):
     run_dir = tmp_path / "run"
     cfg = compose_run([*TINY, "serial=true", "actors.count=1", "max_seconds=60", "learner.max_updates=40", "eval.every_updates=20", "eval.directions=[ccw]"])
     stop = threading.Event()
@@ -38,3 +38,12 @@ def test_short_training_then_eval_of_its_checkpoint_writes_table_figures_and_cur
     assert report["title"].startswith("gvf_ddpg after") and len(report["drives"]) == 6
     assert "Reward /s" in (out / "eval.md").read_text()
     assert all((out / f).stat().st_size > 1000 for f in (*FIGURES, "learning_curves.png"))
+    # the same run as a one-job multirun: the reproduction's comparison, clean and damaged
+    from actors.evaluation.compare import compare
+
+    (run_dir / ".hydra").mkdir()
+    (run_dir / ".hydra" / "overrides.yaml").write_text("- agent=gvf_ddpg\n")
+    table = compare(tmp_path, tmp_path / "results").read_text()
+    assert "### test roads\n" in table and "### test roads, damaged lane markings\n" in table
+    assert table.count("| gvf_ddpg | 1 |") == 2 and table.count("| kinematic controller | - |") == 2
+    assert (tmp_path / "results" / "learning_curves_gvf_ddpg.png").stat().st_size > 1000

@@ -1,6 +1,7 @@
 """One comparison table and figure set from a reproduction multirun (`gvf-train -m +experiment=reproduce`):
-every run's final checkpoint evaluated on the held-out roads, mean and std over seeds per agent
-variant, with the kinematic controller as reference, and learning curves per variant.
+every run's final checkpoint evaluated on the held-out roads, clean and with damaged lane
+markings, mean and std over seeds per agent variant, with the kinematic controller as
+reference, and learning curves per variant.
 
     python -m actors.evaluation.compare MULTIRUN_DIR [--out docs/results]
 """
@@ -8,6 +9,7 @@ variant, with the kinematic controller as reference, and learning curves per var
 from __future__ import annotations
 
 import argparse
+import dataclasses
 from collections import defaultdict
 from pathlib import Path
 
@@ -15,6 +17,7 @@ import numpy as np
 import yaml
 
 from actors.evaluation.evaluate import evaluate, summary
+from actors.evaluation.main import DEFAULT_DAMAGE
 from actors.evaluation.policies import checkpoint_policy, kinematic_policy
 from actors.evaluation.report import COLUMNS, learning_curves
 
@@ -24,27 +27,39 @@ def job_agent(job: Path) -> str:
     return next((o.split("=", 1)[1] for o in overrides if o.startswith("agent=")), "gvf_ddpg")
 
 
-def compare(multirun: Path, out: Path) -> Path:
-    out.mkdir(parents=True, exist_ok=True)
-    per_agent: dict[str, list[dict]] = defaultdict(list)
-    jobs: dict[str, list[Path]] = defaultdict(list)
-    for job in sorted(p.parent.parent for p in multirun.glob("*/checkpoints/ckpt-*.pt")):
-        agent = job_agent(job)
-        policy, _ = checkpoint_policy(job / "checkpoints")
-        per_agent[agent].append(summary(evaluate(policy)))
-        jobs[agent].append(job)
-    reference = summary(evaluate(kinematic_policy()))
+CONDITIONS = {"test roads": {}, "test roads, damaged lane markings": {"damage": dataclasses.asdict(DEFAULT_DAMAGE)}}
+
+
+def table(per_agent: dict[str, list[dict]], reference: dict) -> list[str]:
+    """Markdown rows: mean ± std over the runs of each agent, then the reference controller."""
     head = "| method | runs | " + " | ".join(f"{h} {a}" for _, h, a in COLUMNS) + " |"
     lines = [head, "|" + " --- |" * (len(COLUMNS) + 2)]
     for agent, runs in sorted(per_agent.items()):
         cells = [f"{np.mean([r[k] for r in runs]):.3f} ± {np.std([r[k] for r in runs]):.3f}" for k, _, _ in COLUMNS]
         lines.append(f"| {agent} | {len(runs)} | " + " | ".join(cells) + " |")
     lines.append("| kinematic controller | - | " + " | ".join(f"{reference[k]:.3f}" for k, _, _ in COLUMNS) + " |")
+    return lines
+
+
+def compare(multirun: Path, out: Path) -> Path:
+    out.mkdir(parents=True, exist_ok=True)
+    results: dict[str, dict[str, list[dict]]] = {c: defaultdict(list) for c in CONDITIONS}
+    jobs: dict[str, list[Path]] = defaultdict(list)
+    for job in sorted(p.parent.parent for p in multirun.glob("*/checkpoints/ckpt-*.pt")):
+        agent = job_agent(job)
+        policy, _ = checkpoint_policy(job / "checkpoints")
+        for condition, env in CONDITIONS.items():
+            results[condition][agent].append(summary(evaluate(policy, **env)))
+        jobs[agent].append(job)
+    lines: list[str] = []
+    for condition, env in CONDITIONS.items():
+        reference = summary(evaluate(kinematic_policy(), **env))
+        lines += [f"### {condition}", "", *table(results[condition], reference), ""]
     for agent, dirs in jobs.items():
         learning_curves(dirs, out / f"learning_curves_{agent}.png")
-    table = out / "comparison.md"
-    table.write_text("\n".join(lines) + "\n")
-    return table
+    path = out / "comparison.md"
+    path.write_text("\n".join(lines))
+    return path
 
 
 def main() -> None:
