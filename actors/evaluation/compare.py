@@ -45,7 +45,7 @@ def compare(multirun: Path, out: Path) -> Path:
     out.mkdir(parents=True, exist_ok=True)
     results: dict[str, dict[str, list[dict]]] = {c: defaultdict(list) for c in CONDITIONS}
     jobs: dict[str, list[Path]] = defaultdict(list)
-    for job in sorted(p.parent.parent for p in multirun.glob("*/checkpoints/ckpt-*.pt")):
+    for job in sorted({p.parent.parent for p in multirun.glob("*/checkpoints/ckpt-*.pt")}):  # a job has several
         agent = job_agent(job)
         policy, _ = checkpoint_policy(job / "checkpoints")
         for condition, env in CONDITIONS.items():
