@@ -170,10 +170,10 @@ class LearnerService:
     def data_ahead(self) -> float:
         """Transitions ingested or waiting in the inbox beyond what the learner needs now: the
         warm-up, then `batch / samples_per_insert` per update done."""
-        have = self.counters["inserted"] + len(self.chunks_in) * self.cfg.actor.chunk_len
-        if self._ready_at is None:
-            return have - max(self.core.warmup, 1)
-        return have - self._ready_at - self._session_updates * self.core.batch_size / self.lc.samples_per_insert
+        waiting = len(self.chunks_in) * self.cfg.actor.chunk_len
+        if self._ready_at is None:  # the replay, not the counters: a resumed learner may start empty
+            return len(self.core.replay) + waiting - max(self.core.warmup, 1)
+        return self.counters["inserted"] + waiting - self._ready_at - self._session_updates * self.core.batch_size / self.lc.samples_per_insert
 
     def flow(self, now: float) -> None:
         """Rate limit on the actors' side: pause them while the learner is far behind the data
