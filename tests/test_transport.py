@@ -84,7 +84,7 @@ def test_keys_and_matching():
     for bad in ("a/b", "*", "", "a b", "$x", ".."):
         with pytest.raises(ValueError):
             keys.transitions(bad)
-    assert len(keys.routes()) == 6
+    assert len(keys.routes()) == 7
 
 
 # --- in-process transport ------------------------------------------------------------------
