@@ -20,6 +20,7 @@ TINY = [
     "scale.warmup=64", "scale.batch_size=32", "scale.buffer_size=5000",
     "actor.num_envs=2", "actor.chunk_len=16", "learner.publish_every=5",
     "learner.samples_per_insert=4", "learner.log_every=5", "learner.checkpoint_every=50",
+    "learner.torch_threads=1",  # leave a core to the actor and router of a test run
 ]
 
 
