@@ -67,7 +67,7 @@ class LearningCore:
         self.replay = ImportanceResamplingReplay(
             scale.buffer_size if buffer_size is None else buffer_size, seed=seed)
         self.generator = torch.Generator().manual_seed(seed)
-        self.step_sizes = steps = step_sizes(agent, scale)
+        steps = step_sizes(agent, scale)
         if self.predictive:
             self.gammas = expand_gammas(agent.gammas, len(agent.cumulants)).to(self.device)
             self.gvf_optimizer = torch.optim.Adam(self.nets.gvf.parameters(), lr=steps["lr_gvf"],
