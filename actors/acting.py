@@ -23,21 +23,22 @@ class Acting:
         self.policy = make_policy(agent, scale).eval()
         self.lowdim = agent.representation == "lowdim"
         self.noise = OrnsteinUhlenbeck(n_envs, 2, theta=actor.ou_theta, sigma=actor.ou_sigma, dt=actor.ou_dt, seed=seed)
-        self.version = -1
+        self.version, self.epoch = -1, None
 
     @property
     def ready(self) -> bool:
         return self.version >= 0
 
     def load(self, weights: Weights) -> bool:
-        """Adopt newer weights; returns False (and keeps the old ones) for a stale or mismatched set."""
-        if weights.version <= self.version:
+        """Adopt newer weights, or any from a new learner epoch (a resumed learner counts from its
+        checkpoint); returns False (and keeps the old ones) for a stale set, raises for a mismatched one."""
+        if weights.epoch == self.epoch and weights.version <= self.version:
             return False
         own = self.policy.state_dict()
         if set(weights.tensors) != set(own) or any(tuple(weights.tensors[k].shape) != tuple(v.shape) for k, v in own.items()):
             raise ValueError(f"weights v{weights.version} do not fit this actor's policy (agent/scale differ from the learner's?)")
         self.policy.load_state_dict({k: torch.from_numpy(np.array(v, copy=True)) for k, v in weights.tensors.items()})
-        self.version = weights.version
+        self.version, self.epoch = weights.version, weights.epoch
         return True
 
     @torch.no_grad()

@@ -1,7 +1,7 @@
 """The wire format: every message that crosses Zenoh, encoded as a msgpack map.
 
 Schema (version `SCHEMA_VERSION`) is documented for outside clients in docs/wire.md.
-Every payload is one msgpack map `{"v": 1, "type": <str>, ...fields}`; arrays travel as
+Every payload is one msgpack map `{"v": 2, "type": <str>, ...fields}`; arrays travel as
 `{"dtype": "<f4", "shape": [..], "data": <bin>}` (raw little-endian bytes, C order).
 Nothing is ever pickled. A TransitionChunk holds T consecutive steps of one episode of one
 env and sends each camera frame once: T+1 observations (current, previous) share T+2 frames.
@@ -33,7 +33,7 @@ __all__ = [
 
 log = logging.getLogger(__name__)
 
-SCHEMA_VERSION = 1
+SCHEMA_VERSION = 2
 DEFAULT_LIMITS = Limits()
 CONTROL_COMMANDS = ("stop", "pause", "resume")
 U8, F4, B1 = "|u1", "<f4", "|b1"
@@ -110,6 +110,9 @@ class Weights:
 
     version: int
     tensors: dict[str, np.ndarray] = field(default_factory=dict)
+    epoch: int = 0
+    """The publishing learner's incarnation: a resumed learner counts versions from its
+    checkpoint again, so a new epoch tells receivers to accept a lower version."""
 
 
 @dataclass(frozen=True)
@@ -166,7 +169,7 @@ _CHUNK_SCALARS = ("actor", "env", "episode", "seq", "policy_version", "step0")
 _FIELDS = {
     "transitions": frozenset(_CHUNK_SCALARS) | {"frames"} | set(_STEP_FIELDS),
     "episode": frozenset({"actor", "env", "episode", "track", "steps", "return", "policy_version"}),
-    "weights": frozenset({"version", "tensors"}),
+    "weights": frozenset({"version", "epoch", "tensors"}),
     "tracks": frozenset({"version", "steps"}),
     "control": frozenset({"command", "reason"}),
 }
@@ -194,7 +197,7 @@ def _to_map(msg: Message) -> dict:
             arr = np.asarray(value)
             # keep the float width; any other dtype goes out as-is and is refused as 'dtype'
             tensors[name] = _array_map(arr, arr.dtype.newbyteorder("<").str)
-        return {"v": SCHEMA_VERSION, "type": "weights", "version": _int(msg.version), "tensors": tensors}
+        return {"v": SCHEMA_VERSION, "type": "weights", "version": _int(msg.version), "epoch": _int(msg.epoch), "tensors": tensors}
     if isinstance(msg, TrackTable):
         steps = {track: _int(n) for track, n in msg.steps.items()}
         return {"v": SCHEMA_VERSION, "type": "tracks", "version": _int(msg.version), "steps": steps}
@@ -238,7 +241,7 @@ def _weights_from_map(m: dict, limits: Limits) -> Weights:
     for name, spec in tensors_map.items():
         chk.text(name, "tensor name", 256, allow_empty=False)
         tensors[name] = chk.array({name: spec}, name, WEIGHT_DTYPES, None)
-    return Weights(version=chk.integer(m, "version"), tensors=tensors)
+    return Weights(version=chk.integer(m, "version"), tensors=tensors, epoch=chk.integer(m, "epoch"))
 
 
 def _tracks_from_map(m: dict, limits: Limits) -> TrackTable:

@@ -49,6 +49,7 @@ class LearnerService:
     def __init__(self, cfg: RunConfig, transport, run_dir: str | Path) -> None:
         self.cfg, self.lc, self.t = cfg, cfg.learner, transport
         self.keys = Keys(cfg.run)
+        self.epoch = time.time_ns()  # this incarnation; weights versions restart on resume
         self.run_dir = Path(run_dir)
         torch.set_num_threads(self.lc.torch_threads)
         self.core = LearningCore(cfg.agent, cfg.scale, device=resolve_device(self.lc.device), seed=cfg.seed)
@@ -104,7 +105,7 @@ class LearnerService:
 
     def publish_weights(self) -> None:
         tensors = {name: v.detach().cpu().numpy() for name, v in self.core.policy_state_dict().items()}
-        payload = wire.encode(wire.Weights(self.core.updates, tensors))
+        payload = wire.encode(wire.Weights(self.core.updates, tensors, epoch=self.epoch))
         self.weights_srv.update(payload)
         self.weights_out.put(payload)
 
@@ -116,7 +117,7 @@ class LearnerService:
             if chunk is None:  # counted by kind and dropped; it never reaches the replay
                 continue
             self.seq.see(chunk.actor, chunk.seq)
-            self.lags.append(self.core.updates - chunk.policy_version)
+            self.lags.append(max(0, self.core.updates - chunk.policy_version))  # chunks of a previous epoch can be ahead
             self._hold_out(chunk)
             good.append(chunk)
         for r in self.episodes_in.drain(1024):

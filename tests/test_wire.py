@@ -54,7 +54,7 @@ VALID = [
     EpisodeSummary(actor="a1", env=0, episode=9, track="oval-3", steps=1200, episode_return=-2.5,
                    policy_version=7),
     Weights(version=4, tensors={"actor.0.weight": np.ones((3, 4), np.float32),
-                                "critic.bias": np.arange(5, dtype=np.float64)}),
+                                "critic.bias": np.arange(5, dtype=np.float64)}, epoch=1_795_000_000_000_000_000),
     TrackTable(version=2, steps={"oval": 100, "hairpin": 0}),
     Control(command="pause", reason="maintenance"),
 ]
@@ -79,7 +79,7 @@ def test_other_messages_round_trip(msg):
     out = decode(encode(msg))
     assert type(out) is type(msg)
     if isinstance(msg, Weights):
-        assert out.version == msg.version and out.tensors.keys() == msg.tensors.keys()
+        assert (out.version, out.epoch) == (msg.version, msg.epoch) and out.tensors.keys() == msg.tensors.keys()
         for name, value in msg.tensors.items():
             assert out.tensors[name].dtype == value.dtype
             assert np.array_equal(out.tensors[name], value)
@@ -137,7 +137,7 @@ def test_garbage_empty_truncated_and_trailing_bytes():
     assert_kind(good + b"\x00", "decode")
 
 
-@pytest.mark.parametrize("version", [0, 2, "1", 1.0, True, None])
+@pytest.mark.parametrize("version", [0, 1, 3, "2", 2.0, True, None])
 def test_wrong_or_missing_schema_version(version):
     m = as_map(VALID[4])
     if version is None:
@@ -247,9 +247,9 @@ def test_oversized_payloads_and_containers():
     small = Limits(max_bytes=100_000)
     assert_kind(encode(make_chunk(steps=16)), "size", limits=small)
     assert_kind(b"\x00" * 100_001, "size", limits=small)
-    assert_kind(pack({"v": 1, "type": "control", "reason": b"x" * 100_001}), "size", limits=small)
+    assert_kind(pack({"v": 2, "type": "control", "reason": b"x" * 100_001}), "size", limits=small)
     assert_kind(pack({str(i): i for i in range(70_000)}), "size")
-    assert_kind(pack({"v": 1, "shape": list(range(20))}), "size")
+    assert_kind(pack({"v": 2, "shape": list(range(20))}), "size")
     assert_kind(b"\xdd\xff\xff\xff\xff", "size")  # array header claiming 4 G items
     assert_kind(b"\xdf\xff\xff\xff\xff", "size")  # map header claiming 4 G entries
     assert_kind(pack(msgpack.ExtType(3, b"abc")), "size")  # no extension types at all
@@ -263,7 +263,7 @@ def test_oversized_payloads_and_containers():
 def test_deeply_nested_and_odd_keys():
     assert_kind(b"\x91" * 100_000 + b"\xc0", "decode")  # 100k nested arrays: msgpack's stack limit
     assert_kind(b"\x81\xa1a" * 5000 + b"\xc0", "decode")  # 5k nested maps
-    nested = {"v": 1, "type": "control", "command": "stop", "reason": [[[["deep"]]]]}
+    nested = {"v": 2, "type": "control", "command": "stop", "reason": [[[["deep"]]]]}
     assert_kind(pack(nested), "schema")
     assert_kind(pack({1: 2}), "decode")
     assert_kind(b"\x81\xa2\xff\xfe\x01", "decode")  # key that is not utf-8

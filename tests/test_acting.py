@@ -1,0 +1,49 @@
+"""Weights adoption by the acting step (actors/acting.py): newer versions only within one learner
+epoch, any version of a new epoch (a learner resumed from a checkpoint counts from it again)."""
+
+import numpy as np
+import pytest
+
+from actors.acting import Acting
+from common.config.agent import AgentConfig, ScaleConfig
+from common.config.run import ActorConfig
+from common.wire import Weights, decode, encode
+
+
+def weights(acting: Acting, version: int, epoch: int, fill: float) -> Weights:
+    tensors = {k: np.full(tuple(v.shape), fill, np.float32) for k, v in acting.policy.state_dict().items()}
+    return decode(encode(Weights(version, tensors, epoch=epoch)), expect=Weights)  # as received
+
+
+def first_value(acting: Acting) -> float:
+    return float(next(iter(acting.policy.state_dict().values())).flatten()[0])
+
+
+@pytest.fixture
+def acting() -> Acting:
+    scale = ScaleConfig(name="t", conv_channels=[2, 2, 2, 2, 2], gvf_hidden=[8], behaviour_hidden=[8], policy_hidden=[8])
+    return Acting(AgentConfig(name="gvf_ddpg"), scale, ActorConfig(), 1, seed=0)
+
+
+def test_only_newer_versions_of_the_same_epoch_are_adopted(acting):
+    assert not acting.ready
+    assert acting.load(weights(acting, 40, epoch=7, fill=0.1)) and acting.ready
+    assert not acting.load(weights(acting, 40, epoch=7, fill=0.2))  # same version: a repeat
+    assert not acting.load(weights(acting, 35, epoch=7, fill=0.3))  # late, out of order
+    assert first_value(acting) == pytest.approx(0.1)
+    assert acting.load(weights(acting, 41, epoch=7, fill=0.4))
+    assert (acting.version, first_value(acting)) == (41, pytest.approx(0.4))
+
+
+def test_a_resumed_learner_with_lower_versions_is_followed(acting):
+    acting.load(weights(acting, 45, epoch=7, fill=0.1))
+    assert acting.load(weights(acting, 40, epoch=8, fill=0.5))  # resumed from its checkpoint at 40
+    assert (acting.version, acting.epoch, first_value(acting)) == (40, 8, pytest.approx(0.5))
+    assert acting.load(weights(acting, 42, epoch=8, fill=0.6))
+
+
+def test_weights_of_another_policy_shape_are_refused(acting):
+    bad = Weights(1, {"w": np.zeros(3, np.float32)}, epoch=1)
+    with pytest.raises(ValueError, match="do not fit"):
+        acting.load(bad)
+    assert not acting.ready
