@@ -17,6 +17,7 @@ from __future__ import annotations
 import dataclasses
 import json
 import logging
+import math
 import os
 import threading
 import time
@@ -152,8 +153,15 @@ class LearnerService:
             return 0
         if self._ready_at is None:
             self._ready_at = self.counters["inserted"]
-        allowed = 1 + int((self.counters["inserted"] - self._ready_at) * self.lc.samples_per_insert / self.core.batch_size)
-        return allowed - self._session_updates
+        return 1 + math.floor(self._surplus() / self._per_update())
+
+    def _per_update(self) -> float:
+        """Transitions one update consumes under the samples-per-insert ratio."""
+        return self.core.batch_size / self.lc.samples_per_insert
+
+    def _surplus(self) -> float:
+        """Transitions inserted since the warm-up beyond those the updates done have consumed."""
+        return self.counters["inserted"] - self._ready_at - self._session_updates * self._per_update()
 
     def train(self, max_updates: int) -> dict:
         metrics: dict = {}
@@ -174,14 +182,14 @@ class LearnerService:
         waiting = len(self.chunks_in) * self.cfg.actor.chunk_len
         if self._ready_at is None:  # the replay, not the counters: a resumed learner may start empty
             return len(self.core.replay) + waiting - max(self.core.warmup, 1)
-        return self.counters["inserted"] + waiting - self._ready_at - self._session_updates * self.core.batch_size / self.lc.samples_per_insert
+        return self._surplus() + waiting
 
     def flow(self, now: float) -> None:
         """Rate limit on the actors' side: pause them while the learner is far behind the data
         (which would otherwise pile up, be dropped at the inbox and take CPU from the updates)."""
         if not self.lc.max_owed_updates:
             return
-        limit = self.lc.max_owed_updates * self.core.batch_size / self.lc.samples_per_insert
+        limit = self.lc.max_owed_updates * self._per_update()
         ahead = self.data_ahead()
         paused = ahead > limit or (self._flow_paused and ahead > limit / 2)
         if paused != self._flow_paused or now - self._flow_sent >= self.lc.flow_refresh_s:
