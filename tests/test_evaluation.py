@@ -4,6 +4,10 @@ import json
 import subprocess
 import threading
 
+import numpy as np
+
+from actors.evaluation.evaluate import evaluate
+from actors.evaluation.policies import kinematic_policy
 from common.launch import run_serial
 from tests.helpers import BIN, TINY, compose_run
 
@@ -14,6 +18,16 @@ def gvf_eval(*args, cwd):
     out = subprocess.run([str(BIN / "gvf-eval"), *args], capture_output=True, text=True, timeout=300, cwd=cwd)
     assert out.returncode == 0, out.stderr[-3000:]
     return out.stdout
+
+
+def test_drives_run_together_give_what_each_gives_alone():
+    together = evaluate(kinematic_policy(), tracks=["sage", "brook"])
+    alone = [r for name in ("sage", "brook") for r in evaluate(kinematic_policy(), tracks=[name])]
+    assert [(r["track"], r["direction"]) for r in together] == [("sage", "ccw"), ("sage-r", "cw"), ("brook", "ccw"), ("brook-r", "cw")]
+    for a, b in zip(together, alone):
+        assert a["metrics"] == b["metrics"] and a["metrics"]["lap_completed"] == 1.0
+        assert all(np.array_equal(a["trace"][k], b["trace"][k]) for k in a["trace"])
+    assert len(together[0]["trace"]["alpha"]) != len(together[2]["trace"]["alpha"])  # laps of unequal length
 
 
 def test_kinematic_controller_laps_every_test_road_with_no_near_out_of_lane(tmp_path):

@@ -19,14 +19,14 @@ def kinematic_policy():
 
 
 def network_policy(policy: torch.nn.Module, lowdim: bool):
-    """Deterministic acting (no exploration noise)."""
+    """Deterministic acting (no exploration noise) on a batch of cars."""
 
     @torch.no_grad()
     def act(obs: dict, info: dict) -> np.ndarray:
         batch = {k: torch.from_numpy(np.asarray(obs[k])) for k in ("image", "speed", "last_action")}
         if lowdim:
-            batch["alpha"] = torch.tensor([info["alpha"]], dtype=torch.float32)
-            batch["beta"] = torch.tensor([info["beta"]], dtype=torch.float32)
+            batch["alpha"] = torch.as_tensor(np.asarray(info["alpha"], np.float32)).reshape(-1, 1)
+            batch["beta"] = torch.as_tensor(np.asarray(info["beta"], np.float32)).reshape(-1, 1)
         return np.clip(policy(batch).numpy(), -1.0, 1.0)
 
     return act
