@@ -3,7 +3,8 @@ lap of every held-out road, judged by the periodic noise-free evaluation of a re
 
 Usage: python bench/time_to_drive.py [--budget-min 30] [--eval-every 500] [-- extra Hydra overrides]
 Stops at the first evaluation where every test lap (both directions) is completed, or at the
-budget. The last line printed is one JSON object.
+budget. The last line printed is one JSON object; its `evaluations` list every evaluation as
+[minute it was seen, learner updates, laps completed].
 """
 
 from __future__ import annotations
@@ -41,6 +42,7 @@ def main() -> None:
     start = time.monotonic()
     proc = subprocess.Popen(cmd, stdout=open(run_dir / "train.out", "wb"), stderr=subprocess.STDOUT, env={**os.environ, "OMP_NUM_THREADS": "1"})
     best, done_at = None, None
+    seen: dict[int, list] = {}  # updates -> [minute first seen, updates, laps of 12]
     try:
         while time.monotonic() - start < args.budget_min * 60 and proc.poll() is None:
             time.sleep(5)
@@ -48,6 +50,8 @@ def main() -> None:
             if evals:
                 best = max(evals, key=lambda e: e["mean"]["lap_completed"])
                 last = evals[-1]
+                for e in evals:
+                    seen.setdefault(e["updates"], [round((time.monotonic() - start) / 60, 1), e["updates"], round(e["mean"]["lap_completed"] * len(e["drives"]))])
                 print(f"{(time.monotonic() - start) / 60:5.1f} min  {last['updates']} updates  laps {last['mean']['lap_completed']:.0%}  reward/s {last['mean']['reward_per_s']:.2f}", flush=True)
                 if last["mean"]["lap_completed"] >= 1.0:
                     done_at = last
@@ -71,6 +75,7 @@ def main() -> None:
         "env_steps_per_s": progress.get("env_steps_per_s"),
         "updates_per_s": progress.get("updates_per_s"),
         "run_dir": str(run_dir),
+        "evaluations": sorted(seen.values(), key=lambda x: x[1]),  # [minute, updates, laps completed]
     }))
 
 
