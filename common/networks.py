@@ -28,7 +28,7 @@ from dataclasses import dataclass
 import torch
 from torch import Tensor, nn
 
-from common.config.agent import REPRESENTATIONS, AgentConfig, ScaleConfig
+from common.config.agent import REPRESENTATIONS, AgentConfig, ScaleConfig, actor_squash
 
 IMAGE_SHAPE = (2, 64, 128)  # (frames t and t-1, height, width), the simulator contract
 ACTION_DIM = 2  # steering, target speed
@@ -241,11 +241,11 @@ def make_policy(agent: AgentConfig, scale: ScaleConfig) -> Policy:
     if agent.representation == "predictive":
         gvf = GVFNetwork(scale.conv_channels, scale.gvf_hidden, n_predictions(agent))
         actor = BranchedActor(gvf.n_predictions + LOW_DIM, scale.policy_hidden,
-                              squash=agent.actor_squash)
+                              squash=actor_squash(agent, scale))
         return Policy("predictive", actor, gvf)
     lowdim = scale.lowdim_width if agent.representation == "lowdim" else 0
     actor = ImageActor(ImageEncoder(scale.conv_channels, lowdim), scale.image_policy_hidden,
-                       squash=agent.actor_squash)
+                       squash=actor_squash(agent, scale))
     return Policy(agent.representation, actor)
 
 

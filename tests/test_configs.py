@@ -46,3 +46,20 @@ def test_step_sizes_come_from_the_scale_unless_the_agent_sets_them():
     mine = compose_run(["scale=small", "agent.lr_actor=0.5"])
     assert step_sizes(mine.agent, mine.scale)["lr_actor"] == 0.5
     assert step_sizes(mine.agent, mine.scale)["lr_critic"] == small.scale.lr_critic
+
+
+def test_actor_squash_comes_from_the_scale_unless_the_agent_sets_it():
+    from common.config.agent import actor_squash
+    from common.networks import make_policy
+
+    paper = compose_run(["scale=paper"])
+    assert actor_squash(paper.agent, paper.scale) == "clip"  # the paper's linear output and clip
+    mine = compose_run(["scale=paper", "agent.actor_squash=tanh"])
+    assert actor_squash(mine.agent, mine.scale) == "tanh"
+    assert make_policy(mine.agent, mine.scale).actor.squash == "tanh"
+
+
+@pytest.mark.parametrize("override, field", [("agent.actor_squash=sigmoid", "agent.actor_squash"), ("scale.actor_squash=relu", "scale.actor_squash")])
+def test_a_bad_actor_squash_is_refused_naming_the_field(override, field):
+    with pytest.raises(ValueError, match=field):
+        compose_run([override])

@@ -48,8 +48,8 @@ class AgentConfig:
     """GVF predictor learning rate; None: the scale's (paper: 1e-4)."""
     lr_behaviour: Optional[float] = None
     """Behaviour discriminator learning rate; None: the scale's (paper: 1e-4)."""
-    actor_squash: str = "clip"
-    """Actor output squashing: clip (paper: linear then clip to [-1, 1]) or tanh."""
+    actor_squash: Optional[str] = None
+    """Actor output squashing, clip or tanh; None: the scale's."""
     metrics_every: int = 100
     """Updates between two metric reports."""
 
@@ -88,8 +88,12 @@ class ScaleConfig:
     """GVF predictor learning rate (paper: 1e-4)."""
     lr_behaviour: float = 1e-4
     """Behaviour discriminator learning rate (paper: 1e-4)."""
+    actor_squash: str = "clip"
+    """Actor output squashing: clip (paper: linear then clip to [-1, 1]; an output past a bound
+    gets no gradient, so it can stay there) or tanh (bounded, its gradient never exactly 0)."""
 
 
+SQUASHES = ("clip", "tanh")
 STEP_SIZES = ("discount", "target_update", "lr_actor", "lr_critic", "lr_gvf", "lr_behaviour")
 
 
@@ -97,6 +101,14 @@ def step_sizes(agent: AgentConfig, scale: ScaleConfig) -> dict[str, float]:
     """Learning rates, soft-update rate and discount in force: the agent's where set, else the scale's."""
     return {name: getattr(scale, name) if getattr(agent, name) is None else getattr(agent, name)
             for name in STEP_SIZES}
+
+
+def actor_squash(agent: AgentConfig, scale: ScaleConfig) -> str:
+    """The actor's output squashing in force: the agent's where set, else the scale's."""
+    name, value = ("agent", agent.actor_squash) if agent.actor_squash is not None else ("scale", scale.actor_squash)
+    if value not in SQUASHES:
+        raise ValueError(f"{name}.actor_squash must be one of {SQUASHES}, got {value!r}")
+    return value
 
 
 def register() -> None:

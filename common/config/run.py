@@ -160,6 +160,9 @@ def to_objects(cfg: Any) -> tuple[RunConfig, AgentConfig, ScaleConfig]:
     """A composed DictConfig as typed dataclass objects (validated)."""
     from omegaconf import OmegaConf
 
+    from common.config.agent import actor_squash
+
     run = OmegaConf.to_object(cfg)
     run.env.validate()
+    actor_squash(run.agent, run.scale)  # refuses a bad value naming the field
     return run, run.agent, run.scale
