@@ -8,6 +8,7 @@ import pytest
 from gymnasium.utils.env_checker import check_env
 
 import actors.envs  # noqa: F401  (registers LaneDrive-v0)
+from actors.envs.camera import ground_points
 from actors.envs.lane_drive import LaneDriveEnv, LaneDriveVectorEnv
 from actors.envs.tracks import build_centreline
 
@@ -89,6 +90,17 @@ def test_camera_markings_move_opposite_to_the_car():
     assert abs(_marking_column(centre) - 64) < 2
 
 
+@pytest.mark.parametrize("height", [1.5, 3.0])
+def test_a_higher_camera_sees_further_and_both_markings_to_the_bottom_row(height):
+    fwd, _ = ground_points(height)
+    assert fwd.reshape(64, 128)[0, 64] == pytest.approx(40 * height + 1.0)  # 2.5 rows below the horizon
+    env = _env_on(STADIUM, camera_height=height)
+    env.sim.set_pose(0, 20.0, 0.0, 0.0)
+    bottom = env.sim.frames[0, 0][60:] > 180
+    # 1.5 m: the bottom rows see 2-3 m ahead, where the 6 m lane is wider than the view
+    assert bottom.any() == (height == 3.0)
+
+
 def test_frames_stack_current_and_previous():
     env = _env_on("alder")
     obs0, _ = env.reset(seed=0, options={"track": "alder"})
@@ -165,7 +177,7 @@ def test_rgb_array_render():
 
 @pytest.mark.parametrize(
     "kwargs, field",
-    [({"direction": "up"}, "direction"), ({"lane_width": 50.0}, "lane_width"), ({"speed": 3}, "speed"), ({"damage": {"gap_fraction": 2.0}}, "gap_fraction")],
+    [({"direction": "up"}, "direction"), ({"camera_height": 5.0}, "camera_height"), ({"lane_width": 50.0}, "lane_width"), ({"speed": 3}, "speed"), ({"damage": {"gap_fraction": 2.0}}, "gap_fraction")],
 )
 def test_bad_config_is_refused_naming_the_field(kwargs, field):
     with pytest.raises((ValueError, TypeError), match=field):

@@ -13,16 +13,16 @@ from actors.envs.road_map import RES, RoadMap
 
 WIDTH, HEIGHT = 128, 64
 FOCAL = 100.0  # pixels; 65 degrees horizontal field of view
-CAM_HEIGHT = 1.5  # metres above the road
+CAM_HEIGHT = 1.5  # metres above the road (default; EnvConfig.camera_height)
 CAM_FORWARD = 1.0  # metres ahead of the car's reference point
-HORIZON_GAP = 2.0  # rows between the horizon and the top of the crop: the top row sees ~60 m
+HORIZON_GAP = 2.0  # rows between the horizon and the top of the crop: the top row sees 40 x height
 
 
-def ground_points() -> tuple[np.ndarray, np.ndarray]:
+def ground_points(height: float = CAM_HEIGHT) -> tuple[np.ndarray, np.ndarray]:
     """Forward and left distance (m, car frame) of the ground point under every pixel centre."""
     v, u = np.mgrid[0:HEIGHT, 0:WIDTH].astype(np.float64)
     down = (v + 0.5 + HORIZON_GAP) / FOCAL  # tangent of the ray's angle below the horizon
-    forward = CAM_HEIGHT / down
+    forward = height / down
     left = -forward * (u + 0.5 - WIDTH / 2) / FOCAL
     return (forward + CAM_FORWARD).ravel(), left.ravel()
 
@@ -30,8 +30,8 @@ def ground_points() -> tuple[np.ndarray, np.ndarray]:
 class Camera:
     """Renders (n, 64, 128) uint8 frames for n cars, each on its own road map."""
 
-    def __init__(self) -> None:
-        fwd, left = ground_points()
+    def __init__(self, height: float = CAM_HEIGHT) -> None:
+        fwd, left = ground_points(height)
         self._fwd = (fwd / RES).astype(np.float32)
         self._left = (left / RES).astype(np.float32)
 

@@ -49,7 +49,7 @@ class LaneDriveSim:
     def __init__(self, cfg: EnvConfig, n: int) -> None:
         cfg.validate()
         self.cfg, self.n = cfg, n
-        self.camera = Camera()
+        self.camera = Camera(cfg.camera_height)
         self.half = cfg.lane_width / 2
         z = lambda: np.zeros(n)  # noqa: E731
         self.x, self.y, self.theta, self.v, self.delta = z(), z(), z(), z(), z()

@@ -58,6 +58,8 @@ class EnvConfig:
     """Start at a random place on the lap with a small random offset; False starts at s=0, centred."""
     lighting: bool = True
     """Randomise brightness and contrast per episode."""
+    camera_height: float = 1.5
+    """Height of the level front camera, m: the top image row sees 40x as far ahead."""
     damage: DamageConfig = field(default_factory=DamageConfig)
     """Lane-marking damage and distractors."""
     vehicle: VehicleConfig = field(default_factory=VehicleConfig)
@@ -86,6 +88,8 @@ class EnvConfig:
             raise ValueError(f"env.direction must be 'ccw', 'cw' or 'random', got {self.direction!r}")
         if not 2.0 <= self.lane_width <= 12.0:
             raise ValueError(f"env.lane_width must be in [2, 12] m, got {self.lane_width}")
+        if not 0.5 <= self.camera_height <= 3.0:  # the road maps reach 125 m: 40 x 3 m, plus 1
+            raise ValueError(f"env.camera_height must be in [0.5, 3] m, got {self.camera_height}")
         if self.max_steps < 1:
             raise ValueError(f"env.max_steps must be >= 1, got {self.max_steps}")
         for name in ("gap_fraction", "fade_fraction"):
