@@ -28,7 +28,7 @@ from dataclasses import dataclass
 import torch
 from torch import Tensor, nn
 
-from common.config.agent import REPRESENTATIONS, AgentConfig, ScaleConfig, actor_squash
+from common.config.agent import REPRESENTATIONS, SQUASHES, AgentConfig, ScaleConfig, actor_squash
 
 IMAGE_SHAPE = (2, 64, 128)  # (frames t and t-1, height, width), the simulator contract
 ACTION_DIM = 2  # steering, target speed
@@ -105,8 +105,8 @@ class BranchedActor(nn.Module):
     def __init__(self, in_dim: int, hidden: Sequence[int], n_actions: int = ACTION_DIM,
                  squash: str = "clip"):
         super().__init__()
-        if squash not in ("clip", "tanh"):
-            raise ValueError(f"squash must be clip or tanh, got {squash!r}")
+        if squash not in SQUASHES:
+            raise ValueError(f"squash must be one of {SQUASHES}, got {squash!r}")
         self.branches = nn.ModuleList(mlp(in_dim, hidden, 1) for _ in range(n_actions))
         for branch in self.branches:
             _init_last_layer(branch)

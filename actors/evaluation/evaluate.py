@@ -42,7 +42,7 @@ def evaluate(policy: PolicyFn, split: str = "test", directions=("ccw", "cw"), tr
                 traces[i][key].append(value)
             running[i] = not (terminated[i] or truncated[i] or info["lap_completed"])
     results = []
-    for (name, d), info, trace in zip(drives, infos, traces):
+    for (_, d), info, trace in zip(drives, infos, traces):
         trace = {k: np.asarray(v, np.float32) for k, v in trace.items()}
         metrics = drive_metrics(trace["reward"], trace["speed"], trace["alpha"], trace["beta"], trace["action"], info["lap_completed"])
         results.append({"track": info["track"], "direction": d, "metrics": metrics, "trace": trace})
