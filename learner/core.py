@@ -40,6 +40,7 @@ from learner.behaviour import behaviour_loss, log_mu_hat
 from learner.ddpg import DDPG
 from learner.gvf import cumulants, expand_gammas, gvf_loss, importance_ratio, log_tau, td_target
 from learner.metrics import prediction_error
+from learner.mirror import mirror
 from learner.replay import ImportanceResamplingReplay, compact, expand
 
 OBS_KEYS = ("image", "speed", "last_action")
@@ -124,7 +125,7 @@ class LearningCore:
         """One combined update; metrics every `metrics_every` updates, else an empty dict."""
         if not self.ready:
             raise RuntimeError(f"warm-up: {len(self.replay)} of {self.warmup} transitions")
-        uniform = expand(self.replay.sample_uniform(self.batch_size)).to(self.device)
+        uniform = self._mirrored(expand(self.replay.sample_uniform(self.batch_size)).to(self.device))
         losses: dict[str, Tensor] = {}
         if self.predictive:
             ddpg_batch = self._predictive_step(uniform, losses)
@@ -144,8 +145,9 @@ class LearningCore:
         gvf, n = self.nets.gvf, self.batch_size
         stored = self.replay.sample_by_rho(n).to(self.device)
         batch = expand(stored)
-        if self.agent.refresh_rho:
+        if self.agent.refresh_rho:  # the stored item's rho, so before mirroring
             self.replay.update_rho(stored["index"], self.rho(batch)[0])
+        batch = self._mirrored(batch)
         rho_bar = self.replay.rho_bar
         # v(s') of A, phi(s) and phi(s') of U: three calls, as one 3n batch is slower on CPU
         with torch.no_grad():
@@ -163,6 +165,13 @@ class LearningCore:
                      "reward": nxt["reward"], "done": nxt["done"],
                      "terminated": nxt["terminated"]},
         }, batch_size=[n])
+
+    def _mirrored(self, batch: TensorDictBase) -> TensorDictBase:
+        """`scale.mirror` of the items mirrored left-right, drawn independently per item."""
+        if self.scale.mirror <= 0:
+            return batch
+        mask = torch.rand(batch.shape[0], generator=self.generator) < self.scale.mirror
+        return mirror(batch, mask.to(self.device))
 
     def _observation_batch(self, uniform: TensorDictBase) -> TensorDictBase:
         if self.nets.representation == "lowdim":

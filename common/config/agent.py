@@ -91,6 +91,9 @@ class ScaleConfig:
     actor_squash: str = "clip"
     """Actor output squashing: clip (paper: linear then clip to [-1, 1]; an output past a bound
     gets no gradient, so it can stay there) or tanh (bounded, its gradient never exactly 0)."""
+    mirror: float = 0.0
+    """Fraction of every sampled minibatch mirrored left-right (frames flipped; steering, alpha and
+    beta negated; learner.mirror), as the paper augmented its Jackal data; 0 in its TORCS setup."""
 
 
 SQUASHES = ("clip", "tanh")
@@ -109,6 +112,12 @@ def actor_squash(agent: AgentConfig, scale: ScaleConfig) -> str:
     if value not in SQUASHES:
         raise ValueError(f"{name}.actor_squash must be one of {SQUASHES}, got {value!r}")
     return value
+
+
+def check_scale(scale: ScaleConfig) -> None:
+    """Refuses a scale whose values cannot work, naming the field."""
+    if not 0.0 <= scale.mirror <= 1.0:
+        raise ValueError(f"scale.mirror must be in [0, 1], got {scale.mirror}")
 
 
 def register() -> None:

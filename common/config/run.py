@@ -160,9 +160,10 @@ def to_objects(cfg: Any) -> tuple[RunConfig, AgentConfig, ScaleConfig]:
     """A composed DictConfig as typed dataclass objects (validated)."""
     from omegaconf import OmegaConf
 
-    from common.config.agent import actor_squash
+    from common.config.agent import actor_squash, check_scale
 
     run = OmegaConf.to_object(cfg)
     run.env.validate()
     actor_squash(run.agent, run.scale)  # refuses a bad value naming the field
+    check_scale(run.scale)
     return run, run.agent, run.scale
