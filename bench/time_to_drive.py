@@ -29,6 +29,14 @@ def read_lines(path: Path) -> list[dict]:
     return [json.loads(x) for x in path.read_text().splitlines() if x.strip()]
 
 
+def read_progress(run_dir: Path) -> dict:
+    """The run's progress.json (rewritten every few seconds by gvf-train), or {} before the first."""
+    try:
+        return json.loads((run_dir / "progress.json").read_text())
+    except (FileNotFoundError, json.JSONDecodeError):
+        return {}
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--budget-min", type=float, default=30.0, help="give up after this many minutes")
@@ -43,7 +51,7 @@ def main() -> None:
            f"eval.every_updates={args.eval_every}", f"hydra.run.dir={run_dir}", *args.overrides]
     start = time.monotonic()
     proc = subprocess.Popen(cmd, stdout=open(run_dir / "train.out", "wb"), stderr=subprocess.STDOUT, env={**os.environ, "OMP_NUM_THREADS": "1"})
-    best, done_min = None, None
+    best, done_min, steps_at_done = None, None, None
     seen: dict[int, list] = {}  # updates -> [minute first seen, updates, laps of 12]
     try:
         while time.monotonic() - start < args.budget_min * 60 and proc.poll() is None:
@@ -58,7 +66,7 @@ def main() -> None:
                     best = e
                 print(f"{minute:5.1f} min  {e['updates']} updates  laps {laps}/{len(e['drives'])}  reward/s {e['mean']['reward_per_s']:.2f}", flush=True)
                 if e["mean"]["lap_completed"] >= 1.0 and done_min is None:
-                    done_min = minute
+                    done_min, steps_at_done = minute, read_progress(run_dir).get("inserted")
             if done_min is not None and not args.until_budget:
                 break
     finally:
@@ -68,10 +76,11 @@ def main() -> None:
             proc.wait(60)
         except subprocess.TimeoutExpired:
             proc.kill()
-    progress = json.loads((run_dir / "progress.json").read_text()) if (run_dir / "progress.json").exists() else {}
+    progress = read_progress(run_dir)
     print(json.dumps({
         "minutes_to_all_test_laps": done_min,
-        "env_steps": progress.get("inserted"),
+        "env_steps": steps_at_done if done_min is not None else progress.get("inserted"),  # at the laps, else in all
+        "env_steps_run": progress.get("inserted"),
         "updates": progress.get("updates"),
         "budget_min": args.budget_min,
         "minutes_run": round(elapsed, 2),
