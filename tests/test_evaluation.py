@@ -7,7 +7,8 @@ import threading
 import numpy as np
 
 from actors.evaluation.evaluate import evaluate
-from actors.evaluation.policies import kinematic_policy
+from actors.evaluation.periodic import better
+from actors.evaluation.policies import checkpoint_policy, kinematic_policy
 from common.launch import run_serial
 from tests.helpers import BIN, TINY, compose_run
 
@@ -30,6 +31,13 @@ def test_drives_run_together_give_what_each_gives_alone():
     assert len(together[0]["trace"]["alpha"]) != len(together[2]["trace"]["alpha"])  # laps of unequal length
 
 
+def test_the_best_evaluation_is_the_one_with_most_laps_then_reward_per_second():
+    assert better({"lap_completed": 0.0, "reward_per_s": 1.0}, None)
+    assert better({"lap_completed": 0.5, "reward_per_s": 1.0}, {"lap_completed": 0.25, "reward_per_s": 9.0})
+    assert better({"lap_completed": 0.5, "reward_per_s": 2.0}, {"lap_completed": 0.5, "reward_per_s": 1.0})
+    assert not better({"lap_completed": 0.5, "reward_per_s": 1.0}, {"lap_completed": 0.5, "reward_per_s": 1.0})
+
+
 def test_kinematic_controller_laps_every_test_road_with_no_near_out_of_lane(tmp_path):
     stdout = gvf_eval("policy=kinematic", f"hydra.run.dir={tmp_path}", cwd=tmp_path)
     report = json.loads((tmp_path / "eval.json").read_text())
@@ -46,6 +54,9 @@ def test_short_training_then_eval_and_comparison_of_its_checkpoint_write_tables_
     run_serial(cfg, str(run_dir), stop)
     lines = [json.loads(x) for x in (run_dir / "eval.jsonl").read_text().splitlines()]
     assert lines and lines[0]["updates"] >= 20 and len(lines[0]["drives"]) == 6  # periodic evaluation ran
+    best = max(lines, key=lambda x: (x["mean"]["lap_completed"], x["mean"]["reward_per_s"]))
+    _, meta = checkpoint_policy(run_dir / "checkpoints" / "best-policy.pt")
+    assert meta["updates"] == best["updates"] and meta["agent"] == "gvf_ddpg"  # the best evaluation's policy is kept
     out = tmp_path / "eval"
     gvf_eval(f"checkpoint={run_dir}/checkpoints", f"eval.runs={run_dir}", "eval.directions=[ccw]", f"hydra.run.dir={out}", cwd=tmp_path)
     report = json.loads((out / "eval.json").read_text())
@@ -58,6 +69,7 @@ def test_short_training_then_eval_and_comparison_of_its_checkpoint_write_tables_
     (run_dir / ".hydra").mkdir()
     (run_dir / ".hydra" / "overrides.yaml").write_text("- agent=gvf_ddpg\n")
     table = compare(tmp_path, tmp_path / "results").read_text()
+    assert compare(tmp_path, tmp_path / "results", best=True).name == "comparison_best.md"
     assert "### test roads\n" in table and "### test roads, damaged lane markings\n" in table
     assert table.count("| gvf_ddpg | 1 |") == 2 and table.count("| kinematic controller | - |") == 2
     assert (tmp_path / "results" / "learning_curves_gvf_ddpg.png").stat().st_size > 1000

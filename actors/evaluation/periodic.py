@@ -1,15 +1,20 @@
 """The evaluator role of a training run: every `eval.every_updates` learner updates it takes the
 broadcast policy, drives the held-out roads without exploration noise, and logs the result
 under eval/ in TensorBoard and as a line of eval.jsonl in the run folder (for learning curves).
-It runs in its own process, so training never waits for it."""
+It runs in its own process, so training never waits for it. The policy of the best evaluation so
+far (most laps, then reward per second) is kept as checkpoints/best-policy.pt, which gvf-eval and
+the comparison load like a learner checkpoint: the policy swings from one evaluation to the next,
+so the newest checkpoint is often not the best one."""
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import logging
 import threading
 from pathlib import Path
 
+import torch
 from torch.utils.tensorboard import SummaryWriter
 
 from actors.acting import Acting
@@ -22,6 +27,21 @@ from common.keys import Keys
 from common.transport import make_transport
 
 log = logging.getLogger(__name__)
+BEST = "best-policy.pt"
+
+
+def better(mean: dict, best: dict | None) -> bool:
+    """More laps completed, or as many at a higher reward per second."""
+    return best is None or (mean["lap_completed"], mean["reward_per_s"]) > (best["lap_completed"], best["reward_per_s"])
+
+
+def save_best(path: Path, acting: Acting, cfg: RunConfig, updates: int, mean: dict) -> None:
+    """The evaluated policy in the learner checkpoint's layout (actors.evaluation.policies), atomically."""
+    path.parent.mkdir(parents=True, exist_ok=True)
+    tmp = path.with_suffix(".tmp")
+    torch.save({"policy": acting.policy.state_dict(), "agent": dataclasses.asdict(cfg.agent), "scale": dataclasses.asdict(cfg.scale),
+                "core": {"updates": updates}, "eval": mean}, tmp)
+    tmp.replace(path)
 
 
 def run_evaluator(cfg: RunConfig, transport, run_dir: str | Path, stop: threading.Event) -> None:
@@ -31,6 +51,8 @@ def run_evaluator(cfg: RunConfig, transport, run_dir: str | Path, stop: threadin
     rejects = wire.RejectCounter()
     writer = SummaryWriter(str(Path(run_dir) / "tb" / "eval"))
     due = every
+    best_path = Path(run_dir) / "checkpoints" / BEST
+    best = torch.load(best_path, weights_only=False)["eval"] if best_path.exists() else None  # a restarted evaluator keeps the bar
     try:
         weights_in = t.subscribe(keys.weights, capacity=1, overflow="drop_old")
         while not stop.is_set():
@@ -47,6 +69,9 @@ def run_evaluator(cfg: RunConfig, transport, run_dir: str | Path, stop: threadin
             with open(Path(run_dir) / "eval.jsonl", "a") as f:
                 f.write(json.dumps({"updates": msg.version, "mean": mean, "drives": [{"track": r["track"], **r["metrics"]} for r in results]}) + "\n")
             log.info("eval at %d updates: laps %.0f%%, reward/s %.3f", msg.version, 100 * mean["lap_completed"], mean["reward_per_s"])
+            if better(mean, best):
+                save_best(best_path, acting, cfg, msg.version, mean)
+                best = mean
             due = (msg.version // every + 1) * every
     finally:
         writer.close()
