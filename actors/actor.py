@@ -48,6 +48,15 @@ def actor_seed(seed: int, name: str) -> int:
     return (seed * 1_000_003 + zlib.crc32(name.encode())) % 2**31
 
 
+def make_env(cfg: RunConfig, sampler: PriorityTrackSampler) -> LaneDriveVectorEnv:
+    """The actor's simulators. At each reset the sampler draws the car's next road, having first
+    recorded the steps of the episode that just ended (a named or procedural road bypasses it)."""
+    sampled = cfg.env.track in ("train", "test", "all")
+    return LaneDriveVectorEnv(cfg.actor.num_envs, track_chooser=(lambda i: sampler.sample()) if sampled else None,
+                              on_episode_end=lambda i, info: sampler.record(str(info["track"]), int(info["steps"])),
+                              **env_kwargs(cfg))
+
+
 def _one(obs: dict, i: int) -> dict:
     return {k: v[i] for k, v in obs.items()}
 
@@ -61,8 +70,7 @@ def run_actor(cfg: RunConfig, transport=None, stop: threading.Event | None = Non
     seed = actor_seed(a.seed, a.name)
     rng = np.random.default_rng(seed)
     sampler = PriorityTrackSampler(track_names(a.track_split), rng)
-    sampled = cfg.env.track in ("train", "test", "all")  # a named or procedural road bypasses sampling
-    env = LaneDriveVectorEnv(a.num_envs, track_chooser=(lambda i: sampler.sample()) if sampled else None, **env_kwargs(cfg))
+    env = make_env(cfg, sampler)
     acting = Acting(cfg.agent, cfg.scale, a, a.num_envs, seed=seed)
     sender = Sender(a.send_queue, a.send_timeout_s)
     rejects = wire.RejectCounter()
@@ -131,8 +139,7 @@ def run_actor(cfg: RunConfig, transport=None, stop: threading.Event | None = Non
                 if done[i]:
                     name, steps = str(info["final_info"]["track"][i]), int(info["final_info"]["steps"][i])
                     summary = wire.EpisodeSummary(a.name, i, int(chunks.episodes[i]) - 1, name, steps, float(returns[i]), acting.version)
-                    sender.send(episodes_out, wire.encode(summary))
-                    sampler.record(name, steps)
+                    sender.send(episodes_out, wire.encode(summary))  # the env told the sampler before its draw
                     returns[i] = 0.0
                     stats["episodes"] += 1
                     chunks.start(i, _one(next_obs, i), float(info["alpha"][i]), float(info["beta"][i]), acting.version)

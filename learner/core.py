@@ -16,11 +16,14 @@ The three v(.) evaluations without gradient (v(s') on A, phi(s) and phi(s') on U
 only network work beyond one forward/backward per network. All losses touch disjoint
 parameters, so one backward serves them all.
 
-rho refresh (`AgentConfig.refresh_rho`, default off as in the paper): with it, the rho of
-each GVF minibatch is recomputed with the current discriminator after sampling and
-written back (priorities and rho_bar); the minibatch itself was drawn with the old values.
-Off by default because Algorithm 1 computes rho once, at insert, and a refresh touches
-only items that are drawn, so items with a stale small rho stay rarely refreshed.
+rho is computed at insert with the g of that moment (Algorithm 1), which makes two kinds of
+stale ratio: the warm-up's, inserted before any update trained g (rho ~55 where a fitted g
+gives ~1, so that block held most of the GVF sampling mass until evicted), and every item's
+as g moves on. Hence (`AgentConfig`): before the first update g alone takes
+`behaviour_warmup_updates` steps on the warm-up data and then every stored rho is
+recomputed (`refresh_all_rho`, batched, rho_bar made exact), and so again every
+`rho_refresh_every` updates. `refresh_rho` (default off) also rewrites the rho of each GVF
+minibatch after it is drawn.
 
 Variants (`AgentConfig.representation`): predictive (gvf_ddpg, _g0, _g095) trains all
 three parts; image and lowdim (the DDPG baselines) train DDPG alone, rho = 1.
@@ -85,6 +88,7 @@ class LearningCore:
                          discount=steps["discount"], target_update=steps["target_update"],
                          lr_actor=steps["lr_actor"], lr_critic=steps["lr_critic"])
         self.updates = 0
+        self.warm = False  # g trained on the warm-up data and every rho recomputed
         self.held_out: TensorDictBase | None = None
         self._rho_seen = 0
         self._rho_clipped = 0
@@ -97,6 +101,26 @@ class LearningCore:
         logit = self.nets.behaviour(*_obs(td), action)
         return importance_ratio(log_tau(action, td["last_action"], self.agent.tau_width),
                                 log_mu_hat(logit, action), self.agent.rho_max)
+
+    @torch.no_grad()
+    def refresh_all_rho(self, slice_size: int = 4 * RHO_SLICE) -> None:
+        """Recompute the rho of every stored item with the current g; rho_bar becomes exact."""
+        for index, stored in self.replay.slots(slice_size):
+            obs = TensorDict({"image": stored["image"].view(torch.uint8), "speed": stored["speed"],
+                              "last_action": stored["last_action"], "action": stored["action"]},
+                             batch_size=stored.batch_size).to(self.device)
+            self.replay.update_rho(index, self.rho(obs)[0])
+        self.replay.resum_rho()
+
+    def _warm_start(self) -> None:
+        """g alone on the warm-up data, then every rho recomputed with it (module docstring)."""
+        for _ in range(self.agent.behaviour_warmup_updates):
+            uniform = self._mirrored(expand(self.replay.sample_uniform(self.batch_size)).to(self.device))
+            loss = behaviour_loss(self.nets.behaviour, _obs(uniform), uniform["action"], self.generator)
+            self.behaviour_optimizer.zero_grad(set_to_none=True)
+            loss.backward()
+            self.behaviour_optimizer.step()
+        self.refresh_all_rho()
 
     def add(self, transitions: TensorDictBase) -> None:
         """Store a batch of transitions (torchrl convention, see learner.replay) with its rho."""
@@ -125,6 +149,12 @@ class LearningCore:
         """One combined update; metrics every `metrics_every` updates, else an empty dict."""
         if not self.ready:
             raise RuntimeError(f"warm-up: {len(self.replay)} of {self.warmup} transitions")
+        if self.predictive and not self.warm and self.agent.behaviour_warmup_updates:
+            self._warm_start()  # a resumed core counts as warm: its g was trained
+        self.warm = True
+        every = self.agent.rho_refresh_every
+        if self.predictive and every and self.updates and self.updates % every == 0:
+            self.refresh_all_rho()
         uniform = self._mirrored(expand(self.replay.sample_uniform(self.batch_size)).to(self.device))
         losses: dict[str, Tensor] = {}
         if self.predictive:
@@ -135,11 +165,23 @@ class LearningCore:
         total = loss_ddpg + sum(losses.values())
         self._zero_grad()
         total.backward()
+        report = (self.updates + 1) % self.agent.metrics_every == 0
+        if report:  # before the step: the gradient and actions that made it
+            losses.update(self._diagnostics(ddpg_batch))
         self._step()
         self.updates += 1
-        if self.updates % self.agent.metrics_every:
+        if not report:
             return {}
         return self._metrics(losses, out)
+
+    @torch.no_grad()
+    def _diagnostics(self, ddpg_batch: TensorDictBase) -> dict[str, Tensor]:
+        """Actor gradient norm and how often its output sits at a bound (|a| > 0.99), per action."""
+        grads = [p.grad for p in self.nets.actor.parameters() if p.grad is not None]
+        action = self.ddpg.loss_module.actor_network(ddpg_batch.select(*self.ddpg.loss_module.actor_network.in_keys))["action"]
+        saturated = (action.abs() > 0.99).float().mean(0)
+        return {"diag/actor_grad_norm": torch.nn.utils.get_total_norm(grads),
+                "diag/saturated_steering": saturated[0], "diag/saturated_speed": saturated[1]}
 
     def _predictive_step(self, uniform: TensorDictBase, losses: dict[str, Tensor]) -> TensorDict:
         gvf, n = self.nets.gvf, self.batch_size
@@ -153,7 +195,7 @@ class LearningCore:
         with torch.no_grad():
             v = [gvf(*_obs(td)) for td in (batch["next"], uniform, uniform["next"])]
         target = td_target(cumulants(batch["next"], self.agent.cumulants),
-                           batch["next", "terminated"], v[0], self.gammas)
+                           batch["next", "terminated"], v[0], self.gammas, self.agent.gvf_terminal)
         losses["td"] = gvf_loss(gvf(*_obs(batch)), target, rho_bar)
         losses["behaviour"] = behaviour_loss(self.nets.behaviour, _obs(uniform),
                                              uniform["action"], self.generator)
@@ -162,7 +204,7 @@ class LearningCore:
             "phi": phi(v[1], uniform["speed"], uniform["last_action"]),
             "action": uniform["action"],
             "next": {"phi": phi(v[2], nxt["speed"], nxt["last_action"]),
-                     "reward": nxt["reward"], "done": nxt["done"],
+                     "reward": nxt["reward"] * self.scale.reward_scale, "done": nxt["done"],
                      "terminated": nxt["terminated"]},
         }, batch_size=[n])
 
@@ -174,6 +216,7 @@ class LearningCore:
         return mirror(batch, mask.to(self.device))
 
     def _observation_batch(self, uniform: TensorDictBase) -> TensorDictBase:
+        uniform["next", "reward"] = uniform["next", "reward"] * self.scale.reward_scale
         if self.nets.representation == "lowdim":
             for td in (uniform, uniform["next"]):
                 td["lowdim"] = torch.cat([td["alpha"], td["beta"]], -1)
@@ -193,11 +236,14 @@ class LearningCore:
         self.ddpg.target_updater.step()
 
     def _metrics(self, losses: dict[str, Tensor], out: TensorDictBase) -> dict[str, float]:
-        metrics = {f"losses/{name}": float(value.detach()) for name, value in losses.items()}
+        metrics = {name if "/" in name else f"losses/{name}": float(value.detach())
+                   for name, value in losses.items()}
         metrics["losses/actor"] = float(out["loss_actor"].detach())
         metrics["losses/critic"] = float(out["loss_value"].detach())
         metrics["train/q_mean"] = float(out["pred_value"].detach().mean())
         metrics["train/q_target_mean"] = float(out["target_value"].detach().mean())
+        q = out["pred_value"].detach()
+        metrics["train/q_min"], metrics["train/q_max"] = float(q.min()), float(q.max())
         metrics["train/updates"] = float(self.updates)
         metrics["train/replay_size"] = float(len(self.replay))
         if self.predictive:
@@ -205,14 +251,19 @@ class LearningCore:
             metrics["train/rho_clip_rate"] = self._rho_clipped / max(self._rho_seen, 1)
             self._rho_seen = self._rho_clipped = 0
             if self.held_out is not None:
-                metrics.update(prediction_error(self.nets.gvf, self.held_out,
-                                                self.agent.cumulants, self.agent.gammas))
+                metrics.update(prediction_error(self.nets.gvf, self.held_out, self.agent.cumulants,
+                                                self.agent.gammas, terminal=self.agent.gvf_terminal))
         return metrics
 
     # --- weights and checkpoints ---------------------------------------------------------------
     def policy_state_dict(self) -> dict[str, Tensor]:
-        """Weights of the acting network (`common.networks.make_policy`), for the actors."""
-        return self.nets.policy.state_dict()
+        """Weights of the acting network (`common.networks.make_policy`), for the actors: the
+        online actor, or with `scale.act_with_target` DDPG's Polyak-averaged target actor."""
+        if not self.scale.act_with_target:
+            return self.nets.policy.state_dict()
+        loss = self.ddpg.loss_module
+        with loss.target_actor_network_params.to_module(loss.actor_network):
+            return {k: v.detach().clone() for k, v in self.nets.policy.state_dict().items()}
 
     def state_dict(self, with_replay: bool = False) -> dict[str, Any]:
         state = {name: module.state_dict() for name, module in self.nets.modules().items()}
@@ -231,6 +282,7 @@ class LearningCore:
             module.load_state_dict(state[name])
         self.ddpg.load_state_dict(state["ddpg"])
         self.updates = state["updates"]
+        self.warm = self.updates > 0
         self.generator.set_state(state["generator"])
         if self.predictive:
             self.gvf_optimizer.load_state_dict(state["gvf_optimizer"])

@@ -3,8 +3,14 @@ Algorithm 1, lines 6-9 and 13-14).
 
 Predictive questions. Cumulants c_{t+1} are the lane centeredness alpha and the road
 angle beta of the transition's *next* state, each scaled by (1 - gamma) so that every
-prediction lives on the cumulant's own scale. The continuation is gamma, 0 at
-termination (a truncated episode keeps bootstrapping). Predictions are ordered
+prediction lives on the cumulant's own scale. A truncated episode keeps bootstrapping.
+At termination (the car left the lane) the convention is `AgentConfig.gvf_terminal`:
+
+- "absorbing" (default): the terminal state repeats its cumulant forever, so the target
+  there is c_T and a departure k steps ahead weighs gamma^k on every prediction;
+- "zero": the continuation is 0, the target (1 - gamma) c_T; k steps before a departure a
+  gamma = 0.97 prediction then carries only (1 - gamma^k) of the deviation, so an imminent
+  exit looks centred to the long-horizon GVFs, the ones that should warn of it. Predictions are ordered
 cumulant-major: [alpha@gamma_1..gamma_G, beta@gamma_1..gamma_G].
 
 8 versus 5: the appendix says "8 predictions: 4 of alpha, 4 of beta", then "each of the 5
@@ -36,6 +42,7 @@ from collections.abc import Mapping, Sequence
 import torch
 from torch import Tensor
 
+from common.config.agent import TERMINALS
 from learner.behaviour import ACTION_HIGH, ACTION_LOW
 
 _LOG_SQRT_2PI = 0.5 * math.log(2.0 * math.pi)
@@ -70,16 +77,21 @@ def expand_gammas(gammas: Sequence[float] | Tensor, n_cumulants: int) -> Tensor:
 
 
 def td_target(cumulant: Tensor, terminated: Tensor, next_predictions: Tensor,
-              gammas: Tensor) -> Tensor:
-    """y = (1 - gamma) c_{t+1} + gamma (1 - terminal) v(s_{t+1}) for every (cumulant, gamma).
+              gammas: Tensor, terminal: str = "zero") -> Tensor:
+    """y = (1 - gamma) c_{t+1} + gamma b_{t+1} for every (cumulant, gamma), where b is v(s_{t+1})
+    without gradient, or at a termination c_{t+1} ("absorbing") or 0 ("zero").
 
-    cumulant (B, C); terminated (B, 1) bool; next_predictions (B, C*G), computed without
-    gradient; gammas (C*G,) from `expand_gammas`.
+    cumulant (B, C); terminated (B, 1) bool; next_predictions (B, C*G); gammas (C*G,) from
+    `expand_gammas`.
     """
+    if terminal not in TERMINALS:
+        raise ValueError(f"terminal must be one of {TERMINALS}, got {terminal!r}")
     n_gammas = gammas.shape[0] // cumulant.shape[-1]
     c = cumulant.repeat_interleave(n_gammas, dim=-1)
-    continuation = gammas * (~terminated.reshape(-1, 1)).to(c.dtype)
-    return (1.0 - gammas) * c + continuation * next_predictions.detach()
+    ended = terminated.reshape(-1, 1).bool()
+    after = c if terminal == "absorbing" else torch.zeros_like(c)
+    bootstrap = torch.where(ended, after, next_predictions.detach())
+    return (1.0 - gammas) * c + gammas * bootstrap
 
 
 def gvf_loss(predictions: Tensor, target: Tensor, rho_bar: float | Tensor) -> Tensor:

@@ -21,10 +21,11 @@ from learner.gvf import cumulants, expand_gammas
 
 
 def recorded_returns(cumulant: Tensor, terminated: Tensor, done: Tensor, gammas: Tensor,
-                     tail_tol: float = 0.01) -> tuple[Tensor, Tensor]:
+                     tail_tol: float = 0.01, terminal: str = "zero") -> tuple[Tensor, Tensor]:
     """Returns (T, C*G) and a validity mask (T, C*G) of a time-ordered trajectory.
 
-    cumulant (T, C) is c_{t+1} of transition t; terminated and done (T,) end episodes.
+    cumulant (T, C) is c_{t+1} of transition t; terminated and done (T,) end episodes; after a
+    termination the return is 0 ("zero") or the last cumulant forever ("absorbing", learner.gvf).
     """
     n_steps, n_cumulants = cumulant.shape
     n_gammas = gammas.shape[0] // n_cumulants
@@ -36,7 +37,8 @@ def recorded_returns(cumulant: Tensor, terminated: Tensor, done: Tensor, gammas:
     w_next = torch.ones_like(c[0])
     for t in range(n_steps - 1, -1, -1):
         if bool(done[t]):  # episode boundary: nothing flows back across it
-            g_next = torch.zeros_like(g_next)
+            absorbing = terminal == "absorbing" and bool(terminated[t])
+            g_next = c[t].clone() if absorbing else torch.zeros_like(g_next)
             w_next = torch.zeros_like(w_next) if bool(terminated[t]) else torch.ones_like(w_next)
         returns[t] = (1.0 - gammas) * c[t] + gammas * g_next
         tail_weight[t] = gammas * w_next
@@ -47,7 +49,7 @@ def recorded_returns(cumulant: Tensor, terminated: Tensor, done: Tensor, gammas:
 @torch.no_grad()
 def prediction_error(gvf: Callable[..., Tensor], trajectory: TensorDictBase,
                      names: Sequence[str], gammas: Sequence[float],
-                     chunk: int = 256) -> dict[str, float]:
+                     chunk: int = 256, terminal: str = "zero") -> dict[str, float]:
     """RMSE of the predictions against recorded returns, per cumulant, and of the best constant.
 
     Keys: `eval/gvf_return_rmse_<name>`, `eval/constant_return_rmse_<name>` (predicting the
@@ -57,7 +59,8 @@ def prediction_error(gvf: Callable[..., Tensor], trajectory: TensorDictBase,
     expanded = expand_gammas(gammas, len(names)).to(trajectory.device)
     terminated = nxt["terminated"].reshape(-1)
     returns, valid = recorded_returns(cumulants(nxt, names), terminated,
-                                      terminated | nxt["truncated"].reshape(-1), expanded)
+                                      terminated | nxt["truncated"].reshape(-1), expanded,
+                                      terminal=terminal)
     predictions = torch.cat([
         gvf(part["image"], part["speed"], part["last_action"])
         for part in trajectory.split(chunk, 0)])

@@ -7,8 +7,11 @@ tree (torchrl `PrioritizedSampler`, alpha = 1, beta = 0, priority = rho), so tha
   sampler adds eps = 1e-8 to every priority, which keeps rho = 0 items legal);
 - `sample_uniform` draws uniformly (the discriminator, line 15, and DDPG);
 - `rho_bar` is the mean rho over the buffer (line 11), kept as a float64 running sum
-  updated on every insert, eviction and rho refresh, never recomputed from scratch; its
-  rounding drift is ~1e-16 relative per update, negligible over any run.
+  updated on every insert, eviction and rho refresh; a refresh of the whole buffer
+  (`slots` + `update_rho`, then `resum_rho`) makes it exact again.
+
+The current rho of slot i is `rho[i]` (and its priority in the sum tree); the "rho" entry
+of a stored item is the value it was inserted with.
 
 The storage layout of a LaneDrive transition is compact: the next observation's previous
 frame is the current frame and its last action is the action, so only the new frame is
@@ -81,6 +84,16 @@ class ImportanceResamplingReplay:
         self._rho_sum += float(rho.sum() - self.rho[unique].sum())
         self.rho[unique] = rho
         self.buffer.update_priority(unique, rho.float())
+
+    def slots(self, size: int):
+        """(slot index, items) over every filled slot in slices of `size` (a batched rho refresh)."""
+        for start in range(0, len(self), size):
+            index = torch.arange(start, min(start + size, len(self)))
+            yield index, self.buffer.storage.get(index)
+
+    def resum_rho(self) -> None:
+        """rho_bar's sum recomputed exactly from the slots (after a refresh of every slot)."""
+        self._rho_sum = float(self.rho[: len(self)].sum())
 
     def sample_by_rho(self, n: int) -> TensorDictBase:
         """n items with probability rho_i / sum_j rho_j, with their slot "index"."""

@@ -38,6 +38,27 @@ def test_the_best_evaluation_is_the_one_with_most_laps_then_reward_per_second():
     assert not better({"lap_completed": 0.5, "reward_per_s": 1.0}, {"lap_completed": 0.5, "reward_per_s": 1.0})
 
 
+def test_validation_selection_never_evaluates_a_test_road(monkeypatch):
+    import pytest
+
+    from actors.envs.tracks import track_names
+    from actors.evaluation import periodic
+    from common.config.run import RunConfig
+
+    driven = []
+    real = periodic.evaluate
+    monkeypatch.setattr(periodic, "evaluate", lambda policy, *a, tracks=None, **kw: (driven.append(list(tracks)), real(policy, *a, tracks=tracks, **kw))[1])
+    cfg = RunConfig()
+    cfg.eval.validation_tracks = cfg.eval.validation_tracks[:2]
+    mean = periodic.validate(kinematic_policy(), cfg)
+    assert driven == [["procedural:9001", "procedural:9002"]] and mean["lap_completed"] == 1.0
+    for road in (track_names("test")[0], track_names("test")[1] + "-r", track_names("train")[0]):
+        cfg.eval.validation_tracks = ["procedural:9001", road]
+        with pytest.raises(ValueError, match="eval.validation_tracks"):
+            periodic.validate(kinematic_policy(), cfg)
+    assert len(driven) == 1  # refused before any drive
+
+
 def test_kinematic_controller_laps_every_test_road_with_no_near_out_of_lane(tmp_path):
     stdout = gvf_eval("policy=kinematic", f"hydra.run.dir={tmp_path}", cwd=tmp_path)
     report = json.loads((tmp_path / "eval.json").read_text())
@@ -54,7 +75,7 @@ def test_short_training_then_eval_and_comparison_of_its_checkpoint_write_tables_
     run_serial(cfg, str(run_dir), stop)
     lines = [json.loads(x) for x in (run_dir / "eval.jsonl").read_text().splitlines()]
     assert lines and lines[0]["updates"] >= 20 and len(lines[0]["drives"]) == 6  # periodic evaluation ran
-    best = max(lines, key=lambda x: (x["mean"]["lap_completed"], x["mean"]["reward_per_s"]))
+    best = max(lines, key=lambda x: (x["validation"]["lap_completed"], x["validation"]["reward_per_s"]))  # chosen on validation
     _, meta = checkpoint_policy(run_dir / "checkpoints" / "best-policy.pt")
     assert meta["updates"] == best["updates"] and meta["agent"] == "gvf_ddpg"  # the best evaluation's policy is kept
     out = tmp_path / "eval"

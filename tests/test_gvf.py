@@ -165,3 +165,31 @@ def test_recorded_returns_for_the_held_out_metric():
                                       tail_tol=0.2)
     assert torch.allclose(returns[:, 1], torch.tensor([1.375, 1.75, 1.5]))
     assert valid[:, 0].all() and valid[:, 1].tolist() == [True, False, False]  # 0.5^k tail
+
+
+@pytest.mark.parametrize("terminal", ["absorbing", "zero"])
+def test_gvf_converges_to_the_values_of_each_terminal_convention(terminal):
+    """A chain of 6 states driven to the right, leaving the lane after the last one, with the
+    cumulant 1 (the lane edge) on every transition. With K steps left before the exit, the
+    (1-gamma)-scaled return is 1 - gamma^K if the terminal value is 0, and 1 at every state if
+    the terminal state repeats its cumulant (absorbing): an imminent exit is fully visible."""
+    n, gammas = 6, expand_gammas([0.0, 0.5, 0.9, 0.97], 1)
+    v = nn.Parameter(torch.zeros(n, len(gammas)))  # tabular GVF, one row per state
+    optimizer = torch.optim.SGD([v], lr=0.5)
+    state, nxt = torch.arange(n), torch.arange(1, n + 1).clamp(max=n - 1)
+    terminated = (state == n - 1).reshape(-1, 1)
+    c = torch.ones(n, 1)
+    for _ in range(3000):
+        target = td_target(c, terminated, v[nxt].detach(), gammas, terminal)
+        optimizer.zero_grad()
+        gvf_loss(v[state], target, 1.0).backward()
+        optimizer.step()
+    steps_left = (n - state).double().reshape(-1, 1)
+    expected = (torch.ones(n, len(gammas)) if terminal == "absorbing"
+                else 1.0 - gammas.double() ** steps_left)
+    assert torch.allclose(v.detach().double(), expected.double(), atol=1e-4), (v, expected)
+
+
+def test_an_unknown_terminal_convention_is_refused():
+    with pytest.raises(ValueError, match="terminal"):
+        td_target(torch.ones(1, 1), torch.tensor([[True]]), torch.zeros(1, 1), torch.tensor([0.9]), "bounce")

@@ -42,3 +42,25 @@ def test_global_table_replaces_local_counts_and_ignores_unknown_roads():
 def test_empty_track_list_is_refused():
     with pytest.raises(ValueError, match="at least one"):
         PriorityTrackSampler([])
+
+
+def test_the_draw_after_an_episode_uses_that_episodes_steps():
+    """The actor's env records the finished episode before it draws the car's next road."""
+    from actors.actor import make_env
+    from common.config.run import RunConfig
+
+    cfg = RunConfig()
+    cfg.actor.num_envs = 1
+    sampler = PriorityTrackSampler(["brook"], np.random.default_rng(0))
+    seen = []  # the sampler's table at each draw
+    draw = sampler.sample
+    sampler.sample = lambda: (seen.append(dict(sampler.table())), draw())[1]
+    env = make_env(cfg, sampler)
+    env.reset(seed=0)
+    steps = 0
+    while len(seen) < 2:  # full left lock: off the road within a few seconds
+        _, _, term, trunc, info = env.step(np.array([[1.0, 1.0]], np.float32))
+        steps += 1
+        assert steps < 1200
+    assert term[0] and seen[0] == {"brook": 0.0}
+    assert seen[1] == {"brook": float(info["final_info"]["steps"][0])} == {"brook": float(steps)}

@@ -2,6 +2,7 @@
 rho enters the replay as tau / mu_hat, the refresh switch works, checkpoints resume exactly."""
 
 import copy
+import dataclasses
 
 import pytest
 import torch
@@ -24,6 +25,7 @@ VARIANTS = {
 TINY = ScaleConfig(name="tiny", conv_channels=[4, 8, 8, 8, 8], gvf_hidden=[32, 32],
                    behaviour_hidden=[32, 16], policy_hidden=[32, 16],
                    image_policy_hidden=[32, 16], batch_size=16, buffer_size=300, warmup=200)
+PAPER_RHO = dict(behaviour_warmup_updates=0, rho_refresh_every=0)  # rho fixed at insert (Algorithm 1)
 
 
 @pytest.fixture(scope="module")
@@ -103,7 +105,7 @@ def test_rho_at_insert_is_tau_over_mu_hat_and_clips_are_counted(data):
 def test_gvf_batch_is_drawn_by_rho_and_scaled_by_rho_bar_the_others_uniformly(data, monkeypatch):
     import learner.core
 
-    core = make_core("gvf_ddpg")
+    core = make_core("gvf_ddpg", **PAPER_RHO)
     core.add(data[:300])
     core.replay.update_rho(torch.arange(300), torch.zeros(300))
     core.replay.update_rho(torch.tensor([17]), torch.tensor([3.0]))  # the only item with rho > 0
@@ -146,7 +148,7 @@ def test_baselines_store_rho_one():
 
 @pytest.mark.parametrize("refresh", [False, True])
 def test_refresh_switch_rewrites_rho_of_the_sampled_batch(refresh, data):
-    core = make_core("gvf_ddpg", refresh_rho=refresh)
+    core = make_core("gvf_ddpg", refresh_rho=refresh, **PAPER_RHO)
     core.add(data[:300])
     with torch.no_grad():  # the discriminator has moved on since the insert
         core.nets.behaviour.head[-1].bias += 1.0
@@ -227,3 +229,76 @@ def test_gvf_predictions_on_lanedrive_beat_a_constant_predictor():
     print(f"RMSE / constant RMSE, rows alpha, beta; columns gammas {gammas}:\n{ratio}")
     assert torch.all(ratio[0, :2] <= 0.5), ratio
     assert torch.all(ratio[1, :2] <= 0.75), ratio
+
+
+def test_refresh_all_rho_makes_every_stored_rho_current_and_rho_bar_exact(data):
+    core = make_core("gvf_ddpg", **PAPER_RHO)
+    core.add(data[:300])
+    inserted = core.replay.rho.clone()
+    with torch.no_grad():  # g has moved on since the insert
+        core.nets.behaviour.head[-1].bias -= 2.0
+    core.refresh_all_rho(slice_size=64)  # several slices, the last one partial
+    stored = expand(core.replay.buffer.storage.get(torch.arange(300)))
+    with torch.no_grad():
+        logit = core.nets.behaviour(stored["image"], stored["speed"], stored["last_action"], stored["action"])
+    expected, _ = importance_ratio(log_tau(stored["action"], stored["last_action"], core.agent.tau_width),
+                                   log_mu_hat(logit, stored["action"]), core.agent.rho_max)
+    expected = expected.reshape(-1).double()
+    assert not torch.allclose(inserted[:300], expected, rtol=1e-3)
+    assert torch.allclose(core.replay.rho[:300], expected, rtol=1e-5)
+    assert core.replay.rho_bar == pytest.approx(float(core.replay.rho[:300].mean()), rel=1e-12)
+    assert core.replay.rho_bar == pytest.approx(float(expected.mean()), rel=1e-5)
+    tree_total = core.replay.buffer.sampler._sum_tree.query(0, 300)  # the sampling mass moved too
+    assert tree_total == pytest.approx(float(expected.sum()) + 300 * 1e-8, rel=1e-4)
+
+
+def test_g_is_trained_before_the_first_update_and_rho_refreshed_every_k(data, monkeypatch):
+    core = make_core("gvf_ddpg", behaviour_warmup_updates=20, rho_refresh_every=3)
+    core.add(data[:300])
+    g_before = copy.deepcopy(core.nets.behaviour.state_dict())
+    calls = []
+    refresh = core.refresh_all_rho
+    monkeypatch.setattr(core, "refresh_all_rho", lambda: (calls.append(core.updates), refresh())[1])
+    core.update()
+    assert calls == [0]  # the warm start, before update 1
+    moved = max(float((v - g_before[k]).abs().max()) for k, v in core.nets.behaviour.state_dict().items())
+    assert moved > 1e-2  # 20 discriminator steps, not the one of a combined update
+    for _ in range(6):
+        core.update()
+    assert calls == [0, 3, 6]
+
+
+def test_a_resumed_core_does_not_warm_start_again(data):
+    core = make_core("gvf_ddpg")
+    core.add(data[:300])
+    core.update()
+    resumed = make_core("gvf_ddpg")
+    resumed.load_state_dict(core.state_dict(with_replay=True))
+    assert resumed.warm
+
+
+def test_act_with_target_broadcasts_the_polyak_averaged_actor(data):
+    scale = dataclasses.replace(TINY, act_with_target=True)
+    core = LearningCore(AgentConfig(name="gvf_ddpg", lr_actor=1e-2, metrics_every=100), scale, seed=0)
+    core.add(data[:300])
+    for _ in range(5):
+        core.update()
+    sent, online = core.policy_state_dict(), core.nets.policy.state_dict()
+    target = core.ddpg.loss_module.target_actor_network_params
+    key = "branches.0.0.weight"
+    assert torch.equal(sent[f"actor.{key}"], target["module", *key.split(".")])
+    assert not torch.equal(sent[f"actor.{key}"], online[f"actor.{key}"])
+    assert all(torch.equal(sent[k], online[k]) for k in online if k.startswith("gvf."))  # no target GVF
+
+
+def test_reward_scale_scales_the_critics_target(data, monkeypatch):
+    seen = []
+    for reward_scale in (1.0, 0.01):
+        core = LearningCore(AgentConfig(name="ddpg_image", metrics_every=1),
+                            dataclasses.replace(TINY, reward_scale=reward_scale), seed=0)
+        core.add(data[:300])
+        loss = core.ddpg.loss
+        monkeypatch.setattr(core.ddpg, "loss", lambda batch: (seen.append(batch["next", "reward"].clone()), loss(batch))[1])
+        core.update()
+    assert torch.allclose(seen[1], 0.01 * seen[0])
+    assert seen[0].abs().max() > 0

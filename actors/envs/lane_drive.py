@@ -80,10 +80,12 @@ class LaneDriveVectorEnv(VectorEnv):
 
     metadata = {"render_modes": ["rgb_array"], "render_fps": 10, "autoreset_mode": AutoresetMode.SAME_STEP}
 
-    def __init__(self, num_envs: int, render_mode: str | None = None, track_chooser: Callable[[int], str] | None = None, **kwargs: Any) -> None:
-        """`track_chooser(i)`, if given, names the road for car i at each of its resets (priority track sampling)."""
+    def __init__(self, num_envs: int, render_mode: str | None = None, track_chooser: Callable[[int], str] | None = None,
+                 on_episode_end: Callable[[int, dict], None] | None = None, **kwargs: Any) -> None:
+        """`track_chooser(i)`, if given, names the road for car i at each of its resets (priority track sampling);
+        `on_episode_end(i, final_info_i)` is told of car i's finished episode before that car's next road is chosen."""
         self.cfg = EnvConfig.from_kwargs(**kwargs)
-        self.track_chooser = track_chooser
+        self.track_chooser, self.on_episode_end = track_chooser, on_episode_end
         self.num_envs = num_envs
         self.render_mode = render_mode
         self.sim = LaneDriveSim(self.cfg, num_envs)
@@ -113,6 +115,8 @@ class LaneDriveVectorEnv(VectorEnv):
             infos["final_info"] = {k: v.copy() for k, v in infos.items() if not k.startswith("_") and k != "final_obs"}
             infos["_final_info"] = done.copy()
             for i in np.flatnonzero(done):
+                if self.on_episode_end is not None:  # before the draw: the sampler must know this episode
+                    self.on_episode_end(int(i), {k: v[i] for k, v in infos["final_info"].items()})
                 self._reset_car(int(i), None)
             infos.update(self._infos())
         return self.sim.observation(), reward, terminated, truncated, infos

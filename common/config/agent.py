@@ -36,6 +36,13 @@ class AgentConfig:
     """Importance ratios rho are clipped to this maximum before entering the replay."""
     refresh_rho: bool = False
     """Recompute rho of each GVF minibatch with the current discriminator (the paper computes it once, at insert)."""
+    behaviour_warmup_updates: int = 200
+    """Discriminator-only steps on the warm-up data before the first update, then every rho is recomputed
+    (the warm-up's rho came from an untrained g, ~55 where a fitted g gives ~1)."""
+    rho_refresh_every: int = 1000
+    """Recompute the rho of every item in the replay with the current g every this many updates (0: never)."""
+    gvf_terminal: str = "absorbing"
+    """GVF target at a termination: absorbing (the last cumulant continues, target c_T) or zero (learner.gvf)."""
     discount: Optional[float] = None
     """DDPG discount of the reward (not stated in the paper); None: the scale's."""
     target_update: Optional[float] = None
@@ -94,6 +101,10 @@ class ScaleConfig:
     mirror: float = 0.0
     """Fraction of every sampled minibatch mirrored left-right (frames flipped; steering, alpha and
     beta negated; learner.mirror), as the paper augmented its Jackal data; 0 in its TORCS setup."""
+    reward_scale: float = 1.0
+    """DDPG's reward is multiplied by this (the paper scaled its reward so that action values lie in [-1, 1])."""
+    act_with_target: bool = False
+    """Broadcast (act and evaluate with) DDPG's Polyak-averaged target actor instead of the online one."""
 
 
 SQUASHES = ("clip", "tanh")
@@ -114,10 +125,24 @@ def actor_squash(agent: AgentConfig, scale: ScaleConfig) -> str:
     return value
 
 
+TERMINALS = ("absorbing", "zero")  # learner.gvf.td_target
+
+
 def check_scale(scale: ScaleConfig) -> None:
     """Refuses a scale whose values cannot work, naming the field."""
     if not 0.0 <= scale.mirror <= 1.0:
         raise ValueError(f"scale.mirror must be in [0, 1], got {scale.mirror}")
+    if not scale.reward_scale > 0.0:
+        raise ValueError(f"scale.reward_scale must be > 0, got {scale.reward_scale}")
+
+
+def check_agent(agent: AgentConfig) -> None:
+    """Refuses an agent whose values cannot work, naming the field."""
+    if agent.gvf_terminal not in TERMINALS:
+        raise ValueError(f"agent.gvf_terminal must be one of {TERMINALS}, got {agent.gvf_terminal!r}")
+    for name in ("behaviour_warmup_updates", "rho_refresh_every"):
+        if getattr(agent, name) < 0:
+            raise ValueError(f"agent.{name} must be >= 0, got {getattr(agent, name)}")
 
 
 def register() -> None:

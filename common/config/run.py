@@ -107,6 +107,8 @@ class EvalConfig:
     """Evaluate with damaged lane markings (the env.damage of env=lanedrive_damaged if unset)."""
     every_updates: int = 0
     """gvf-train: evaluate the broadcast policy every this many learner updates (0: never)."""
+    validation_tracks: list = field(default_factory=lambda: [f"procedural:{seed}" for seed in range(9001, 9007)])
+    """gvf-train: roads (neither train nor test) on which the periodic evaluator picks its best policy."""
     runs: Optional[str] = None
     """gvf-eval: a run (or multirun) folder whose eval.jsonl files give learning curves."""
     out_dir: Optional[str] = None
@@ -160,10 +162,11 @@ def to_objects(cfg: Any) -> tuple[RunConfig, AgentConfig, ScaleConfig]:
     """A composed DictConfig as typed dataclass objects (validated)."""
     from omegaconf import OmegaConf
 
-    from common.config.agent import actor_squash, check_scale
+    from common.config.agent import actor_squash, check_agent, check_scale
 
     run = OmegaConf.to_object(cfg)
     run.env.validate()
     actor_squash(run.agent, run.scale)  # refuses a bad value naming the field
     check_scale(run.scale)
+    check_agent(run.agent)
     return run, run.agent, run.scale

@@ -1,0 +1,122 @@
+"""The paper's comparison as resumable jobs, one `gvf-train` run per (agent variant, seed), each
+leaving a small JSON summary (committed under docs/results/runs/) from which `compare` builds
+every table and figure; checkpoints stay in the scratch folder and are never committed.
+
+    python -m actors.evaluation.study --variants gvf_ddpg ddpg_image --seeds 0 1 2 3 4 --minutes 15
+    python -m actors.evaluation.compare docs/results/runs
+
+A job whose summary exists is skipped, so an interrupted study continues where it stopped. A
+summary holds the run's periodic evaluations (minute, updates, test and validation metrics,
+per road: lap, episode length, where the drive ended) and the final policies (the last
+checkpoint and the validation-selected best-policy.pt) driven on the test roads, clean and with
+damaged markings, with each clean drive's lane centeredness along the lap (downsampled).
+"""
+
+from __future__ import annotations
+
+import argparse
+import dataclasses
+import json
+import os
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+
+from actors.evaluation.evaluate import evaluate, summary
+from actors.evaluation.main import DEFAULT_DAMAGE
+from actors.evaluation.periodic import BEST
+from actors.evaluation.policies import checkpoint_policy
+
+BIN = Path(sys.executable).parent
+VARIANTS = ("gvf_ddpg", "gvf_ddpg_g0", "gvf_ddpg_g095", "ddpg_image", "ddpg_lowdim")
+TRACE_POINTS = 200  # lane centeredness along a lap, downsampled: the summary stays small
+DRIVE_KEYS = ("lap_completed", "episode_length", "offcenteredness", "near_out_of_lane", "reward_per_s")
+
+
+def summary_path(out: Path, variant: str, seed: int) -> Path:
+    return out / variant / f"seed{seed}.json"
+
+
+def _trace(result: dict) -> dict:
+    progress, alpha = result["trace"]["progress"], result["trace"]["alpha"]
+    keep = np.unique(np.linspace(0, len(alpha) - 1, min(TRACE_POINTS, len(alpha))).astype(int))
+    return {"progress": np.round(progress[keep], 4).tolist(), "alpha": np.round(alpha[keep], 4).tolist()}
+
+
+def final_drives(path: Path) -> dict | None:
+    """The policy of a checkpoint on the test roads, clean (with traces) and with damaged markings."""
+    try:
+        policy, meta = checkpoint_policy(path)
+    except (FileNotFoundError, ValueError):
+        return None
+    out: dict = {"updates": meta["updates"]}
+    for condition, env in (("clean", {}), ("damaged", {"damage": dataclasses.asdict(DEFAULT_DAMAGE)})):
+        results = evaluate(policy, **env)
+        out[condition] = {"mean": summary(results), "drives": [{"track": r["track"], **r["metrics"]} for r in results]}
+        if condition == "clean":
+            out[condition]["traces"] = {r["track"]: _trace(r) for r in results}
+    return out
+
+
+def summarize(run_dir: Path, start: float, job: dict) -> dict:
+    """The small record of one finished run (module docstring)."""
+    evaluations = []
+    eval_file = run_dir / "eval.jsonl"
+    for line in eval_file.read_text().splitlines() if eval_file.exists() else []:
+        e = json.loads(line)
+        evaluations.append({
+            "updates": e["updates"], "minute": round((e["time"] - start) / 60, 2) if "time" in e else None,
+            "mean": e["mean"], "validation": e.get("validation"),
+            "drives": [{"track": d["track"], **{k: d[k] for k in (*DRIVE_KEYS, "end_progress") if k in d}} for d in e["drives"]],
+        })
+    progress = json.loads((run_dir / "progress.json").read_text()) if (run_dir / "progress.json").exists() else {}
+    return {**job, "progress": progress, "evaluations": evaluations,
+            "last": final_drives(run_dir / "checkpoints"), "selected": final_drives(run_dir / "checkpoints" / BEST)}
+
+
+def run_job(variant: str, seed: int, minutes: float, eval_every: int, out: Path, work: Path, overrides: list[str]) -> Path:
+    """One training run and its summary; skipped if the summary exists."""
+    path = summary_path(out, variant, seed)
+    if path.exists():
+        print(f"skip {variant} seed {seed}: {path} exists", flush=True)
+        return path
+    run_dir = work / f"{variant}-seed{seed}"
+    run_dir.mkdir(parents=True, exist_ok=True)
+    cmd = [str(BIN / "gvf-train"), f"agent={variant}", "scale=small", "actors.count=2", "progress=false",
+           f"run=study-{variant}-{seed}", f"seed={seed}", f"max_seconds={minutes * 60:.0f}",
+           f"eval.every_updates={eval_every}", f"hydra.run.dir={run_dir}", *overrides]
+    print(f"run {variant} seed {seed} for {minutes} min in {run_dir}", flush=True)
+    start = time.time()
+    with open(run_dir / "train.out", "wb") as log:
+        subprocess.run(cmd, stdout=log, stderr=subprocess.STDOUT, timeout=minutes * 60 + 600,
+                       env={**os.environ, "OMP_NUM_THREADS": "1"}, check=True)
+    job = {"variant": variant, "seed": seed, "minutes": minutes, "eval_every": eval_every, "overrides": overrides,
+           "wall_minutes": round((time.time() - start) / 60, 2)}
+    record = summarize(run_dir, start, job)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    tmp = path.with_suffix(".tmp")
+    tmp.write_text(json.dumps(record))
+    tmp.replace(path)  # a half-written summary would be skipped as done
+    return path
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser.add_argument("--variants", nargs="+", default=list(VARIANTS), choices=VARIANTS)
+    parser.add_argument("--seeds", nargs="+", type=int, default=[0, 1, 2, 3, 4])
+    parser.add_argument("--minutes", type=float, default=15.0, help="wall-clock budget of each run")
+    parser.add_argument("--eval-every", type=int, default=500, help="learner updates between evaluations")
+    parser.add_argument("--out", type=Path, default=Path("docs/results/runs"), help="where summaries go (commit these)")
+    parser.add_argument("--work", type=Path, default=Path("runs/study"), help="scratch: run folders, checkpoints")
+    parser.add_argument("overrides", nargs="*", help="extra Hydra overrides for every run")
+    args = parser.parse_args()
+    for seed in args.seeds:  # seed-major: a partial study has every variant at its first seeds
+        for variant in args.variants:
+            print(run_job(variant, seed, args.minutes, args.eval_every, args.out, args.work, args.overrides), flush=True)
+
+
+if __name__ == "__main__":
+    main()
