@@ -84,13 +84,19 @@ def test_short_training_then_eval_and_comparison_of_its_checkpoint_write_tables_
     assert report["title"].startswith("gvf_ddpg after") and len(report["drives"]) == 6
     assert "Reward /s" in (out / "eval.md").read_text()
     assert all((out / f).stat().st_size > 1000 for f in (*FIGURES, "learning_curves.png"))
-    # the same run as a one-job multirun: the reproduction's comparison, clean and damaged
+    # the run's summary (as the study commits it), and the comparison built from summaries alone
     from actors.evaluation.compare import compare
+    from actors.evaluation.study import summarize
 
-    (run_dir / ".hydra").mkdir()
-    (run_dir / ".hydra" / "overrides.yaml").write_text("- agent=gvf_ddpg\n")
-    table = compare(tmp_path, tmp_path / "results").read_text()
-    assert compare(tmp_path, tmp_path / "results", best=True).name == "comparison_best.md"
-    assert "### test roads\n" in table and "### test roads, damaged lane markings\n" in table
-    assert table.count("| gvf_ddpg | 1 |") == 2 and table.count("| kinematic controller | - |") == 2
-    assert (tmp_path / "results" / "learning_curves_gvf_ddpg.png").stat().st_size > 1000
+    record = summarize(run_dir, start=lines[0]["time"] - 60, job={"variant": "gvf_ddpg", "seed": 0})
+    assert [e["updates"] for e in record["evaluations"]] == [x["updates"] for x in lines]
+    assert record["last"]["clean"]["mean"]["lap_completed"] >= 0 and len(record["last"]["damaged"]["drives"]) == 12
+    assert record["selected"]["updates"] == best["updates"]
+    (tmp_path / "runs" / "gvf_ddpg").mkdir(parents=True)
+    (tmp_path / "runs" / "gvf_ddpg" / "seed0.json").write_text(json.dumps(record))
+    table = compare(tmp_path / "runs", tmp_path / "results").read_text()
+    assert table.count("### ") == 5 and "### last checkpoint, test roads, damaged lane markings\n" in table
+    assert table.count("| gvf_ddpg | 1 |") == 4 and table.count("| kinematic controller | - |") == 4
+    assert "| gvf_ddpg | 0 |" in table  # the staying-good row of the run
+    for name in ("curve_reward_per_s", "curve_episode_length", "curve_offcenteredness", "lane_centeredness_final"):
+        assert (tmp_path / "results" / f"{name}.png").stat().st_size > 1000

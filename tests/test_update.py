@@ -76,7 +76,7 @@ def test_every_variant_trains_all_its_networks(variant, data):
 @pytest.mark.parametrize("variant", list(VARIANTS))
 def test_every_variant_updates_on_recorded_lanedrive_transitions(variant):
     pytest.importorskip("actors.envs")
-    from tests.lanedrive_rollouts import collect as collect_lanedrive
+    from actors.evaluation.gvf_truth import collect as collect_lanedrive
 
     recorded = collect_lanedrive(2, 120, seed=len(variant))
     core = make_core(variant)
@@ -191,7 +191,7 @@ def test_gvf_predictions_on_lanedrive_beat_a_constant_predictor():
     """Real LaneDrive: kinematic controller + OU noise (sigma 1.0) as behaviour; 1,000 full
     updates (batch 64, GVF lr 1e-3), data streamed in as in Algorithm 1 so that rho comes
     from a discriminator that is learning. Truth: Monte Carlo returns under tau from 60
-    visited states (tests/lanedrive_rollouts.py).
+    visited states (actors/evaluation/gvf_truth.py).
 
     sigma 1.0 (stationary std 0.7 of the action range, correlated over ~10 s) makes the road
     angle vary (std ~0.09 rad; ~0.03 at sigma 0.3, a shift of ~3 px that 1,000 updates do
@@ -203,14 +203,14 @@ def test_gvf_predictions_on_lanedrive_beat_a_constant_predictor():
     importance resampling corrects actions, not states.
     """
     pytest.importorskip("actors.envs")
-    from tests.lanedrive_rollouts import collect as collect_lanedrive
-    from tests.lanedrive_rollouts import tau_returns
+    from actors.evaluation.gvf_truth import collect as collect_lanedrive
+    from actors.evaluation.gvf_truth import tau_returns
 
     torch.set_num_threads(1)
     gammas = [0.0, 0.5, 0.9, 0.95, 0.97]
-    data = collect_lanedrive(8, 300, seed=0, sigma=1.0)
-    obs, truth = tau_returns(60, gammas, seed=7, sigma=1.0)
     agent = AgentConfig(name="gvf_ddpg", lr_gvf=1e-3, metrics_every=10**9)
+    data = collect_lanedrive(8, 300, seed=0, sigma=1.0)
+    obs, truth = tau_returns(60, gammas, seed=7, sigma=1.0, terminal=agent.gvf_terminal)
     scale = ScaleConfig(name="small", conv_channels=[8, 12, 16, 16, 16], gvf_hidden=[128, 96],
                         behaviour_hidden=[128, 64], policy_hidden=[64, 32], batch_size=64)
     core = LearningCore(agent, scale, seed=0, buffer_size=len(data), warmup=800)

@@ -1,8 +1,6 @@
-"""LaneDrive data for the learner's tests: the kinematic controller with OU noise as the
-behaviour, and Monte Carlo returns under the GVFs' target policy tau as ground truth.
-
-Import only after `pytest.importorskip("actors.envs")`: this module needs the simulator.
-"""
+"""Ground truth for the GVFs on LaneDrive (the learner's tests and bench/rho_refresh.py): the
+kinematic controller with OU noise as the behaviour, and Monte Carlo returns under the GVFs'
+target policy tau from the states it visits."""
 
 from __future__ import annotations
 
@@ -58,17 +56,18 @@ def _stack(steps: list[dict]) -> dict:
 
 
 def tau_returns(n_states: int, gammas: list[float], seed: int, sigma: float = 0.1,
-                width: float = 0.1, horizon: int = 150, every: int = 10
-                ) -> tuple[TensorDict, torch.Tensor]:
+                width: float = 0.1, horizon: int = 150, every: int = 10, terminal: str = "zero",
+                track: str = "train") -> tuple[TensorDict, torch.Tensor]:
     """Observations of states visited by the behaviour, and one rollout's return under tau.
 
     From every `every`-th state the simulator is copied and driven by tau (actions drawn
     from the truncated normal of width `width` around the last action) until termination
     or `horizon` steps; returns (n_states, 2 * G) in the GVFs' order [alpha@gammas,
-    beta@gammas], cumulants scaled by (1 - gamma).
+    beta@gammas], cumulants scaled by (1 - gamma). After a termination the return adds nothing
+    ("zero") or the last cumulant forever ("absorbing"; learner.gvf's terminal conventions).
     """
     rng = np.random.default_rng(seed)
-    env, controller = LaneDriveEnv(), KinematicController()
+    env, controller = LaneDriveEnv(track=track), KinematicController()
     noise = OrnsteinUhlenbeck(1, 2, sigma=sigma, seed=seed)
     observations, returns = [], []
     obs, info = env.reset(seed=seed)
@@ -83,7 +82,7 @@ def tau_returns(n_states: int, gammas: list[float], seed: int, sigma: float = 0.
             continue
         if step % every:
             continue
-        sim, last, signals = copy.deepcopy(env), obs["last_action"], []
+        sim, last, signals, ended = copy.deepcopy(env), obs["last_action"], [], False
         for _ in range(horizon):
             while True:  # exact truncated-normal sample around the last action
                 a = last + width * rng.standard_normal(2)
@@ -93,9 +92,11 @@ def tau_returns(n_states: int, gammas: list[float], seed: int, sigma: float = 0.
             last = tau_obs["last_action"]
             signals.append((tau_info["alpha"], tau_info["beta"]))
             if tau_terminated:
+                ended = True
                 break
-        signals = np.asarray(signals)
-        row = [sum((1 - g) * g ** k * signals[k, c] for k in range(len(signals)))
+        signals, n = np.asarray(signals), len(signals)
+        tail = (lambda g, c: g ** n * signals[-1, c]) if ended and terminal == "absorbing" else (lambda g, c: 0.0)
+        row = [sum((1 - g) * g ** k * signals[k, c] for k in range(n)) + tail(g, c)
                for c in range(2) for g in gammas]
         observations.append({k: torch.as_tensor(v) for k, v in obs.items()})
         returns.append(row)
