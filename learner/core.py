@@ -86,7 +86,9 @@ class LearningCore:
                          actor_in_keys=keys + lowdim,
                          critic_in_keys=keys + ["action"] + lowdim,
                          discount=steps["discount"], target_update=steps["target_update"],
-                         lr_actor=steps["lr_actor"], lr_critic=steps["lr_critic"])
+                         lr_actor=steps["lr_actor"], lr_critic=steps["lr_critic"], td3=agent.td3,
+                         policy_noise=agent.td3_policy_noise, noise_clip=agent.td3_noise_clip,
+                         actor_delay=agent.td3_actor_delay)
         self.updates = 0
         self.warm = False  # g trained on the warm-up data and every rho recomputed
         self.held_out: TensorDictBase | None = None
@@ -231,8 +233,11 @@ class LearningCore:
             optimizer.zero_grad(set_to_none=True)
 
     def _step(self) -> None:
-        for optimizer in self._optimizers():
+        for optimizer in self._optimizers()[:-2]:
             optimizer.step()
+        self.ddpg.critic_optimizer.step()
+        if self.ddpg.actor_steps_now():  # every update, or every td3_actor_delay with td3
+            self.ddpg.actor_optimizer.step()
         self.ddpg.target_updater.step()
 
     def _metrics(self, losses: dict[str, Tensor], out: TensorDictBase) -> dict[str, float]:

@@ -10,17 +10,23 @@ paper's 1e-6 (actor) and 1e-4 (critic); minibatches are drawn uniformly by the c
 
 For GVF-DDPG the actor and critic read `phi` (computed by the caller from the GVF network
 without gradient); for the image baselines they read the observation keys directly.
+
+`td3=True` (an option, off by default: not the paper's algorithm) swaps in torchrl's `TD3Loss`
+(Fujimoto et al. 2018): twin critics (a second copy of the critic, freshly initialised) with the
+smaller target value, target-policy smoothing (clipped Gaussian noise on the target action), and
+the actor stepped only every `actor_delay` updates.
 """
 
 from __future__ import annotations
 
+import copy
 from collections.abc import Sequence
 
 import torch
 from tensordict import TensorDictBase
 from tensordict.nn import TensorDictModule
 from torch import Tensor, nn
-from torchrl.objectives import DDPGLoss, SoftUpdate, ValueEstimators
+from torchrl.objectives import DDPGLoss, SoftUpdate, TD3Loss, ValueEstimators
 
 
 class DDPG:
@@ -29,23 +35,46 @@ class DDPG:
     def __init__(self, actor: nn.Module, critic: nn.Module, *,
                  actor_in_keys: Sequence[str], critic_in_keys: Sequence[str],
                  discount: float = 0.99, target_update: float = 0.001,
-                 lr_actor: float = 1e-6, lr_critic: float = 1e-4):
+                 lr_actor: float = 1e-6, lr_critic: float = 1e-4, td3: bool = False,
+                 policy_noise: float = 0.2, noise_clip: float = 0.5, actor_delay: int = 2):
         self.actor, self.critic = actor, critic
-        self.loss_module = DDPGLoss(
-            TensorDictModule(actor, in_keys=list(actor_in_keys), out_keys=["action"]),
-            TensorDictModule(critic, in_keys=list(critic_in_keys),
-                             out_keys=["state_action_value"]),
-            delay_actor=True, delay_value=True, loss_function="l2")
+        self.td3, self.actor_delay, self.steps = td3, actor_delay, 0
+        actor_module = TensorDictModule(actor, in_keys=list(actor_in_keys), out_keys=["action"])
+
+        def q(net: nn.Module) -> TensorDictModule:
+            return TensorDictModule(net, in_keys=list(critic_in_keys), out_keys=["state_action_value"])
+
+        if td3:
+            twin = copy.deepcopy(critic)
+            for module in twin.modules():  # the twin starts elsewhere, or the two critics agree
+                if hasattr(module, "reset_parameters"):
+                    module.reset_parameters()
+            self.loss_module = TD3Loss(actor_module, [q(critic), q(twin)], bounds=(-1.0, 1.0), num_qvalue_nets=2,
+                                       policy_noise=policy_noise, noise_clip=noise_clip, loss_function="l2",
+                                       deactivate_vmap=True)  # vmap cannot run the channels_last conv trunk
+            # the twin critics' parameters live stacked in the loss module, not in `critic`
+            critic_params = list(self.loss_module.qvalue_network_params.values(True, True))
+        else:
+            self.loss_module = DDPGLoss(actor_module, q(critic), delay_actor=True, delay_value=True, loss_function="l2")
+            critic_params = list(critic.parameters())
         self.loss_module.make_value_estimator(ValueEstimators.TD0, gamma=discount)
         self.target_updater = SoftUpdate(self.loss_module, tau=target_update)
         # fused: one kernel per step instead of one per tensor
         self.actor_optimizer = torch.optim.Adam(actor.parameters(), lr=lr_actor, fused=True)
-        self.critic_optimizer = torch.optim.Adam(critic.parameters(), lr=lr_critic, fused=True)
+        self.critic_optimizer = torch.optim.Adam(critic_params, lr=lr_critic, fused=True)
 
     def loss(self, batch: TensorDictBase) -> tuple[Tensor, TensorDictBase]:
         """loss_actor + loss_value on a uniform minibatch (their gradients are disjoint)."""
         out = self.loss_module(batch)
+        if self.td3:  # one naming for both losses' outputs
+            out["loss_value"] = out["loss_qvalue"]
+            out["pred_value"] = out["pred_value"].reshape(2, -1)[0]
         return out["loss_actor"] + out["loss_value"], out
+
+    def actor_steps_now(self) -> bool:
+        """Whether this update steps the actor (every update; with td3 every `actor_delay`)."""
+        self.steps += 1
+        return not self.td3 or self.steps % self.actor_delay == 0
 
     def zero_grad(self) -> None:
         self.actor_optimizer.zero_grad(set_to_none=True)
@@ -54,7 +83,8 @@ class DDPG:
     def step(self) -> None:
         """Apply the gradients, then move the target networks (Lillicrap et al., Algorithm 1)."""
         self.critic_optimizer.step()
-        self.actor_optimizer.step()
+        if self.actor_steps_now():
+            self.actor_optimizer.step()
         self.target_updater.step()
 
     def update(self, batch: TensorDictBase) -> TensorDictBase:
@@ -66,11 +96,12 @@ class DDPG:
         return out.detach()
 
     def state_dict(self) -> dict:
-        return {"loss": self.loss_module.state_dict(),
+        return {"loss": self.loss_module.state_dict(), "steps": self.steps,
                 "actor_optimizer": self.actor_optimizer.state_dict(),
                 "critic_optimizer": self.critic_optimizer.state_dict()}
 
     def load_state_dict(self, state: dict) -> None:
         self.loss_module.load_state_dict(state["loss"])
+        self.steps = state.get("steps", 0)
         self.actor_optimizer.load_state_dict(state["actor_optimizer"])
         self.critic_optimizer.load_state_dict(state["critic_optimizer"])

@@ -30,9 +30,23 @@ def test_bad_values_are_refused_naming_the_field(override, field):
         compose_run([override])
 
 
-def test_reproduction_experiment_composes():
-    run = compose_run(["+experiment=reproduce", "agent=ddpg_lowdim", "seed=2"])
-    assert (run.run, run.max_seconds, run.eval.every_updates, run.agent.name, run.seed) == ("reproduce", 1800.0, 500, "ddpg_lowdim", 2)
+@pytest.mark.parametrize("override, field", [("agent.gvf_terminal=bounce", "gvf_terminal"), ("scale.reward_scale=0", "reward_scale"),
+                                             ("agent.rho_refresh_every=-1", "rho_refresh_every")])
+def test_bad_learning_values_are_refused_naming_the_field(override, field):
+    with pytest.raises(ValueError, match=field):
+        compose_run([override])
+
+
+def test_a_study_job_whose_summary_exists_is_skipped(tmp_path, monkeypatch):
+    from actors.evaluation import study
+
+    done = study.summary_path(tmp_path / "runs", "ddpg_image", 3)
+    done.parent.mkdir(parents=True)
+    done.write_text("{}")
+    ran = []
+    monkeypatch.setattr(study.subprocess, "run", lambda cmd, **kw: ran.append(cmd))
+    assert study.run_job("ddpg_image", 3, 15, 500, tmp_path / "runs", tmp_path / "work", []) == done
+    assert ran == [] and not (tmp_path / "work").exists()
 
 
 def test_step_sizes_come_from_the_scale_unless_the_agent_sets_them():

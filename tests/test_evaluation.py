@@ -60,12 +60,16 @@ def test_validation_selection_never_evaluates_a_test_road(monkeypatch):
 
 
 def test_kinematic_controller_laps_every_test_road_with_no_near_out_of_lane(tmp_path):
-    stdout = gvf_eval("policy=kinematic", f"hydra.run.dir={tmp_path}", cwd=tmp_path)
+    stdout = gvf_eval("policy=kinematic", "eval.video=true", f"hydra.run.dir={tmp_path}", cwd=tmp_path)
     report = json.loads((tmp_path / "eval.json").read_text())
     assert len(report["drives"]) == 12  # 6 test roads x 2 directions
     assert all(d["metrics"]["lap_completed"] == 1.0 and d["metrics"]["near_out_of_lane"] == 0.0 for d in report["drives"])
     assert "Near out of lane" in stdout and "| **mean** |" in (tmp_path / "eval.md").read_text()
     assert all((tmp_path / f).stat().st_size > 1000 for f in FIGURES)
+    import imageio.v3 as iio
+
+    video = iio.imread(tmp_path / "lap.gif")  # one lap of the first road: top-down | camera
+    assert video.ndim == 4 and video.shape[0] > 50 and video.shape[1:] == (128, 256, 3)
 
 
 def test_short_training_then_eval_and_comparison_of_its_checkpoint_write_tables_figures_and_curves(tmp_path):

@@ -302,3 +302,25 @@ def test_reward_scale_scales_the_critics_target(data, monkeypatch):
         core.update()
     assert torch.allclose(seen[1], 0.01 * seen[0])
     assert seen[0].abs().max() > 0
+
+
+def test_td3_option_steps_the_actor_every_second_update_with_twin_critics_and_resumes(data):
+    core = make_core("gvf_ddpg", td3=True, td3_actor_delay=2)
+    core.add(data[:300])
+    twins = core.ddpg.loss_module.qvalue_network_params
+    first = twins["module", "branches", "0", "0", "weight"]
+    assert first.shape[0] == 2 and not torch.allclose(first[0], first[1])  # two critics, two starts
+    actor = [copy.deepcopy(core.nets.actor.state_dict())]
+    for _ in range(4):
+        core.update()
+        actor.append(copy.deepcopy(core.nets.actor.state_dict()))
+    moved = [any(not torch.equal(a[k], b[k]) for k in a) for a, b in zip(actor, actor[1:])]
+    assert moved == [False, True, False, True]
+    resumed = make_core("gvf_ddpg", seed=1, td3=True, td3_actor_delay=2)
+    resumed.load_state_dict(copy.deepcopy(core.state_dict(with_replay=True)))
+    for c in (core, resumed):
+        torch.manual_seed(5)  # torchrl draws the target-smoothing noise from the global generator
+        c.update()
+        c.update()
+    assert all(torch.equal(v, resumed.nets.actor.state_dict()[k]) for k, v in core.nets.actor.state_dict().items())
+    assert (core.ddpg.loss_module.qvalue_network_params == resumed.ddpg.loss_module.qvalue_network_params).all()

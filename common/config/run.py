@@ -109,6 +109,8 @@ class EvalConfig:
     """gvf-train: evaluate the broadcast policy every this many learner updates (0: never)."""
     validation_tracks: list = field(default_factory=lambda: [f"procedural:{seed}" for seed in range(9001, 9007)])
     """gvf-train: roads (neither train nor test) on which the periodic evaluator picks its best policy."""
+    video: bool = False
+    """gvf-eval: also write lap.gif, one lap of the first road (top-down view beside the camera image)."""
     runs: Optional[str] = None
     """gvf-eval: a run (or multirun) folder whose eval.jsonl files give learning curves."""
     out_dir: Optional[str] = None
