@@ -86,9 +86,9 @@ class LearningCore:
                          actor_in_keys=keys + lowdim,
                          critic_in_keys=keys + ["action"] + lowdim,
                          discount=steps["discount"], target_update=steps["target_update"],
-                         lr_actor=steps["lr_actor"], lr_critic=steps["lr_critic"], td3=agent.td3,
-                         policy_noise=agent.td3_policy_noise, noise_clip=agent.td3_noise_clip,
-                         actor_delay=agent.td3_actor_delay)
+                         lr_actor=steps["lr_actor"], lr_critic=steps["lr_critic"], td3=scale.td3,
+                         policy_noise=scale.td3_policy_noise, noise_clip=scale.td3_noise_clip,
+                         actor_delay=scale.td3_actor_delay)
         self.updates = 0
         self.warm = False  # g trained on the warm-up data and every rho recomputed
         self.held_out: TensorDictBase | None = None

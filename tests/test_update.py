@@ -305,7 +305,8 @@ def test_reward_scale_scales_the_critics_target(data, monkeypatch):
 
 
 def test_td3_option_steps_the_actor_every_second_update_with_twin_critics_and_resumes(data):
-    core = make_core("gvf_ddpg", td3=True, td3_actor_delay=2)
+    scale = dataclasses.replace(TINY, td3=True, td3_actor_delay=2)
+    core = LearningCore(AgentConfig(name="gvf_ddpg", lr_actor=1e-3, metrics_every=2), scale, seed=0)
     core.add(data[:300])
     twins = core.ddpg.loss_module.qvalue_network_params
     first = twins["module", "branches", "0", "0", "weight"]
@@ -316,7 +317,7 @@ def test_td3_option_steps_the_actor_every_second_update_with_twin_critics_and_re
         actor.append(copy.deepcopy(core.nets.actor.state_dict()))
     moved = [any(not torch.equal(a[k], b[k]) for k in a) for a, b in zip(actor, actor[1:])]
     assert moved == [False, True, False, True]
-    resumed = make_core("gvf_ddpg", seed=1, td3=True, td3_actor_delay=2)
+    resumed = LearningCore(AgentConfig(name="gvf_ddpg", lr_actor=1e-3, metrics_every=2), scale, seed=1)
     resumed.load_state_dict(copy.deepcopy(core.state_dict(with_replay=True)))
     for c in (core, resumed):
         torch.manual_seed(5)  # torchrl draws the target-smoothing noise from the global generator

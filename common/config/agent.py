@@ -57,14 +57,6 @@ class AgentConfig:
     """Behaviour discriminator learning rate; None: the scale's (paper: 1e-4)."""
     actor_squash: Optional[str] = None
     """Actor output squashing, clip or tanh; None: the scale's."""
-    td3: bool = False
-    """TD3-style critic (twin critics, target-policy smoothing, delayed actor steps) instead of the paper's DDPG."""
-    td3_policy_noise: float = 0.2
-    """td3: std of the Gaussian noise on the target action (action units)."""
-    td3_noise_clip: float = 0.5
-    """td3: the target action's noise is clipped to +-this."""
-    td3_actor_delay: int = 2
-    """td3: the actor is stepped once every this many updates."""
     metrics_every: int = 100
     """Updates between two metric reports."""
 
@@ -113,6 +105,14 @@ class ScaleConfig:
     """DDPG's reward is multiplied by this (the paper scaled its reward so that action values lie in [-1, 1])."""
     act_with_target: bool = False
     """Broadcast (act and evaluate with) DDPG's Polyak-averaged target actor instead of the online one."""
+    td3: bool = False
+    """TD3-style critic (twin critics, target-policy smoothing, delayed actor steps) instead of the paper's DDPG (learner.ddpg)."""
+    td3_policy_noise: float = 0.2
+    """td3: std of the Gaussian noise on the target action (action units)."""
+    td3_noise_clip: float = 0.5
+    """td3: the target action's noise is clipped to +-this."""
+    td3_actor_delay: int = 2
+    """td3: the actor is stepped once every this many updates."""
 
 
 SQUASHES = ("clip", "tanh")
@@ -142,14 +142,14 @@ def check_scale(scale: ScaleConfig) -> None:
         raise ValueError(f"scale.mirror must be in [0, 1], got {scale.mirror}")
     if not scale.reward_scale > 0.0:
         raise ValueError(f"scale.reward_scale must be > 0, got {scale.reward_scale}")
+    if scale.td3_actor_delay < 1:
+        raise ValueError(f"scale.td3_actor_delay must be >= 1, got {scale.td3_actor_delay}")
 
 
 def check_agent(agent: AgentConfig) -> None:
     """Refuses an agent whose values cannot work, naming the field."""
     if agent.gvf_terminal not in TERMINALS:
         raise ValueError(f"agent.gvf_terminal must be one of {TERMINALS}, got {agent.gvf_terminal!r}")
-    if agent.td3_actor_delay < 1:
-        raise ValueError(f"agent.td3_actor_delay must be >= 1, got {agent.td3_actor_delay}")
     for name in ("behaviour_warmup_updates", "rho_refresh_every"):
         if getattr(agent, name) < 0:
             raise ValueError(f"agent.{name} must be >= 0, got {getattr(agent, name)}")
