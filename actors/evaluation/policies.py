@@ -3,6 +3,7 @@ learner checkpoint (which stores the policy weights with the agent and scale tha
 
 from __future__ import annotations
 
+import dataclasses
 from pathlib import Path
 
 import numpy as np
@@ -32,6 +33,12 @@ def network_policy(policy: torch.nn.Module, lowdim: bool):
     return act
 
 
+def _known(schema, values: dict):
+    """A config from a checkpoint's saved fields, skipping any this version no longer has (an older file still loads)."""
+    names = {f.name for f in dataclasses.fields(schema)}
+    return schema(**{k: v for k, v in values.items() if k in names})
+
+
 def checkpoint_policy(path: str | Path):
     """The acting network saved in a learner checkpoint (file, or the newest in a folder)."""
     path = Path(path)
@@ -43,7 +50,7 @@ def checkpoint_policy(path: str | Path):
     state = torch.load(path, map_location="cpu", weights_only=False)  # our own file: configs and counters
     if "policy" not in state:
         raise ValueError(f"{path} holds no policy weights (written by an older learner?)")
-    agent, scale = AgentConfig(**state["agent"]), ScaleConfig(**state["scale"])
+    agent, scale = _known(AgentConfig, state["agent"]), _known(ScaleConfig, state["scale"])
     policy = make_policy(agent, scale).eval()
     policy.load_state_dict(state["policy"])
     return network_policy(policy, agent.representation == "lowdim"), {"path": str(path), "agent": agent.name, "updates": state["core"]["updates"]}
