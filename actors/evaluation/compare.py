@@ -128,6 +128,7 @@ def lane_figure(per: dict[str, list[dict]], out: Path) -> Path | None:
         ax.axhline(0.75, color="r", ls=":", lw=0.8)
         ax.axhline(-0.75, color="r", ls=":", lw=0.8)
         ax.set_ylim(-1.1, 1.1)
+        ax.set_xlim(0.0, 1.0)  # the whole lap, so where a drive ended shows
         ax.set_title(track, fontsize=9)
         ax.set_xlabel("lap progress", fontsize=8)
     for ax in list(axes.flat)[len(drives):]:

@@ -33,7 +33,18 @@ from actors.evaluation.policies import checkpoint_policy
 BIN = Path(sys.executable).parent
 VARIANTS = ("gvf_ddpg", "gvf_ddpg_g0", "gvf_ddpg_g095", "ddpg_image", "ddpg_lowdim")
 TRACE_POINTS = 200  # lane centeredness along a lap, downsampled: the summary stays small
-DRIVE_KEYS = ("lap_completed", "episode_length", "offcenteredness", "near_out_of_lane", "reward_per_s")
+DRIVE_KEYS = ("lap_completed", "episode_length")  # per road at each evaluation; the means carry the rest
+
+
+def rounded(value, digits: int = 4):
+    """Floats to `digits` decimals, recursively: a summary stays ~100 KB, and nothing read from it needs more."""
+    if isinstance(value, float):
+        return round(value, digits)
+    if isinstance(value, dict):
+        return {k: rounded(v, digits) for k, v in value.items()}
+    if isinstance(value, list):
+        return [rounded(v, digits) for v in value]
+    return value
 
 
 def summary_path(out: Path, variant: str, seed: int) -> Path:
@@ -46,7 +57,7 @@ def _trace(result: dict) -> dict:
     return {"progress": np.round(progress[keep], 4).tolist(), "alpha": np.round(alpha[keep], 4).tolist()}
 
 
-def final_drives(path: Path) -> dict | None:
+def final_drives(path: Path, traces: bool = True) -> dict | None:
     """The policy of a checkpoint on the test roads, clean (with traces) and with damaged markings."""
     try:
         policy, meta = checkpoint_policy(path)
@@ -56,7 +67,7 @@ def final_drives(path: Path) -> dict | None:
     for condition, env in (("clean", {}), ("damaged", {"damage": dataclasses.asdict(DEFAULT_DAMAGE)})):
         results = evaluate(policy, **env)
         out[condition] = {"mean": summary(results), "drives": [{"track": r["track"], **r["metrics"]} for r in results]}
-        if condition == "clean":
+        if condition == "clean" and traces:
             out[condition]["traces"] = {r["track"]: _trace(r) for r in results}
     return out
 
@@ -74,7 +85,7 @@ def summarize(run_dir: Path, start: float, job: dict) -> dict:
         })
     progress = json.loads((run_dir / "progress.json").read_text()) if (run_dir / "progress.json").exists() else {}
     return {**job, "progress": progress, "evaluations": evaluations,
-            "last": final_drives(run_dir / "checkpoints"), "selected": final_drives(run_dir / "checkpoints" / BEST)}
+            "last": final_drives(run_dir / "checkpoints"), "selected": final_drives(run_dir / "checkpoints" / BEST, traces=False)}
 
 
 def run_job(variant: str, seed: int, minutes: float, eval_every: int, out: Path, work: Path, overrides: list[str]) -> Path:
@@ -98,7 +109,7 @@ def run_job(variant: str, seed: int, minutes: float, eval_every: int, out: Path,
     record = summarize(run_dir, start, job)
     path.parent.mkdir(parents=True, exist_ok=True)
     tmp = path.with_suffix(".tmp")
-    tmp.write_text(json.dumps(record))
+    tmp.write_text(json.dumps(rounded(record)))
     tmp.replace(path)  # a half-written summary would be skipped as done
     return path
 
