@@ -233,12 +233,10 @@ class LearningCore:
             optimizer.zero_grad(set_to_none=True)
 
     def _step(self) -> None:
-        for optimizer in self._optimizers()[:-2]:
-            optimizer.step()
-        self.ddpg.critic_optimizer.step()
-        if self.ddpg.actor_steps_now():  # every update, or every td3_actor_delay with td3
-            self.ddpg.actor_optimizer.step()
-        self.ddpg.target_updater.step()
+        if self.predictive:
+            self.gvf_optimizer.step()
+            self.behaviour_optimizer.step()
+        self.ddpg.step()  # critic, actor (every td3_actor_delay-th with td3), then the targets
 
     def _metrics(self, losses: dict[str, Tensor], out: TensorDictBase) -> dict[str, float]:
         metrics = {name if "/" in name else f"losses/{name}": float(value.detach())
