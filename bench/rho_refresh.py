@@ -14,17 +14,12 @@ from __future__ import annotations
 
 import argparse
 import json
-import sys
-from pathlib import Path
 
-# bench/learner.py would shadow the `learner` package: the repository root first, this folder out
-sys.path[:] = [str(Path(__file__).resolve().parents[1])] + [p for p in sys.path if Path(p or ".").resolve() != Path(__file__).resolve().parent]
+import torch
 
-import torch  # noqa: E402
-
-from actors.evaluation.gvf_truth import collect, tau_returns  # noqa: E402
-from common.config.agent import AgentConfig, ScaleConfig  # noqa: E402
-from learner.core import LearningCore  # noqa: E402
+from actors.evaluation.gvf_truth import collect, tau_returns
+from common.config.agent import AgentConfig, ScaleConfig
+from learner.core import LearningCore
 
 GAMMAS = [0.0, 0.5, 0.9, 0.95, 0.97]
 SMALL = ScaleConfig(name="small", conv_channels=[8, 12, 16, 16, 16], gvf_hidden=[128, 96],

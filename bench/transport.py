@@ -59,8 +59,8 @@ import tempfile
 import time
 from pathlib import Path
 
-# run as a script, bench/ comes first on sys.path and bench/learner.py would shadow `learner`:
-# the repository root goes there instead (spawned processes inherit it, for bench.transport_procs)
+# run as a script, bench/ comes first on sys.path: the repository root goes there instead, so
+# that `bench.transport_procs` imports here and in the spawned processes that inherit it
 _HERE = Path(__file__).resolve().parent
 sys.path[:] = [p for p in sys.path if Path(p or ".").resolve() != _HERE]
 sys.path.insert(0, str(_HERE.parent))

@@ -14,7 +14,7 @@ Timing alternates full and bare in many short rounds and reports medians over ro
 rates, and of the per-round ratios), so that load from other processes hits both alike.
 The last line printed is one JSON object.
 
-    python bench/learner.py [--device cpu|cuda] [--threads N] [--rounds R]
+    python bench/learner_step.py [--device cpu|cuda] [--threads N] [--rounds R]
 """
 
 from __future__ import annotations
@@ -23,23 +23,15 @@ import argparse
 import json
 import os
 import statistics
-import sys
 import time
-from pathlib import Path
 
-# run as a script, this file's folder comes first on sys.path and its name shadows the
-# `learner` package: drop that folder and put the repository root there instead
-_HERE = Path(__file__).resolve().parent
-sys.path[:] = [p for p in sys.path if Path(p or ".").resolve() != _HERE]
-sys.path.insert(0, str(_HERE.parent))
+import torch
+from tensordict import TensorDict
 
-import torch  # noqa: E402
-from tensordict import TensorDict  # noqa: E402
-
-from common.config.agent import AgentConfig, ScaleConfig  # noqa: E402
-from common.networks import phi  # noqa: E402
-from learner.core import LearningCore  # noqa: E402
-from learner.replay import expand  # noqa: E402
+from common.config.agent import AgentConfig, ScaleConfig
+from common.networks import phi
+from learner.core import LearningCore
+from learner.replay import expand
 
 SCALES = {
     "small": ScaleConfig(name="small", conv_channels=[8, 12, 16, 16, 16], gvf_hidden=[128, 96],
