@@ -14,7 +14,6 @@ and adopts new weights as soon as a learner publishes again.
 from __future__ import annotations
 
 import dataclasses
-import json
 import logging
 import threading
 import time
@@ -32,9 +31,9 @@ from actors.track_sampling import PriorityTrackSampler
 from common import wire
 from common.config.run import RunConfig
 from common.keys import Keys
-from common.transport import make_transport
 
 log = logging.getLogger(__name__)
+ROLE = "actor"
 
 
 def env_kwargs(cfg: RunConfig) -> dict:
@@ -61,27 +60,27 @@ def _one(obs: dict, i: int) -> dict:
     return {k: v[i] for k, v in obs.items()}
 
 
-def run_actor(cfg: RunConfig, transport=None, stop: threading.Event | None = None) -> dict:
-    """Run until `stop`, a 'stop' control message, or `actor.max_env_steps`; returns counters."""
+def run_actor(cfg: RunConfig, t, stop: threading.Event, env_factory=make_env) -> dict:
+    """Run over transport `t` until `stop`, a 'stop' control message, or `actor.max_env_steps`;
+    returns counters. `env_factory(cfg, sampler)` builds the simulators (tests pass a fake)."""
     a, keys = cfg.actor, Keys(cfg.run)
-    stop = stop or threading.Event()
     torch.set_num_threads(a.torch_threads)
-    t = transport if transport is not None else make_transport(cfg.transport, stop=stop)
     seed = actor_seed(a.seed, a.name)
     rng = np.random.default_rng(seed)
     sampler = PriorityTrackSampler(track_names(a.track_split), rng)
-    env = make_env(cfg, sampler)
+    env = env_factory(cfg, sampler)
     acting = Acting(cfg.agent, cfg.scale, a, a.num_envs, seed=seed)
     sender = Sender(a.send_queue, a.send_timeout_s)
     rejects = wire.RejectCounter()
     stats = {"env_steps": 0, "episodes": 0, "chunks": 0, "weights_loaded": 0, "paused_s": 0.0}
     try:
-        t.declare_alive(keys.alive("actor", a.name))
-        weights_in = t.subscribe(keys.weights, capacity=1, overflow="drop_old")
-        tracks_in = t.subscribe(keys.tracks, capacity=1, overflow="drop_old")
-        control_in = t.subscribe(keys.control, capacity=16)
-        flow_in = t.subscribe(keys.flow, capacity=1, overflow="drop_old")
-        chunks_out, episodes_out = t.publisher(keys.transitions(a.name)), t.publisher(keys.episodes(a.name))
+        t.declare_alive(keys.publish("alive", ROLE, role=ROLE, name=a.name))
+        weights_in = t.subscribe(keys.subscribe("weights", ROLE), capacity=1, overflow="drop_old")
+        tracks_in = t.subscribe(keys.subscribe("tracks", ROLE), capacity=1, overflow="drop_old")
+        control_in = t.subscribe(keys.subscribe("control", ROLE), capacity=16)
+        flow_in = t.subscribe(keys.subscribe("flow", ROLE), capacity=1, overflow="drop_old")
+        chunks_out = t.publisher(keys.publish("transitions", ROLE, actor=a.name))
+        episodes_out = t.publisher(keys.publish("episodes", ROLE, actor=a.name))
 
         def poll_weights(block_s: float = 0.0) -> None:
             got = weights_in.get(timeout=block_s) if block_s else weights_in.get(timeout=0)
@@ -104,7 +103,8 @@ def run_actor(cfg: RunConfig, transport=None, stop: threading.Event | None = Non
                     if msg.command == "stop":
                         stop.set()
             if (r := flow_in.get(timeout=0)) is not None and (msg := rejects.decode(r.payload, expect=wire.Control, key=r.key)):
-                flow_until = time.monotonic() + 5 * cfg.learner.flow_refresh_s if msg.command == "pause" else 0.0
+                # the pause expires as the learner said (a pause without expiry holds until resume)
+                flow_until = (time.monotonic() + (msg.expires_s or float("inf"))) if msg.command == "pause" else 0.0
 
         while not acting.ready and not stop.is_set():
             poll_weights(block_s=a.weights_poll_s)
@@ -151,25 +151,17 @@ def run_actor(cfg: RunConfig, transport=None, stop: threading.Event | None = Non
     finally:
         sender.close()
         env.close()
-        if transport is None:
-            t.close()
     stats.update(dropped=sender.dropped, send_errors=sender.errors, rejected=rejects.total, policy_version=acting.version)
     log.info("actor %s stopped: %s", a.name, stats)
     return stats
 
 
-def task(cfg) -> None:
-    """Hydra task of `gvf-actor`."""
-    from common.cli import run_role
-    from common.config.run import to_objects
-
-    run, _, _ = to_objects(cfg)
-    stats = run_role(lambda stop: run_actor(run, stop=stop))
-    if stats is not None:
-        print(json.dumps(stats), flush=True)  # last line: the actor's counters, for scripts and tests
+def actor_role(ctx) -> dict:
+    """The actor role (`common.roles`)."""
+    return run_actor(ctx.cfg, ctx.transport, ctx.stop)
 
 
 def main() -> None:
-    from common.cli import hydra_entry
+    from common.cli import role_main
 
-    hydra_entry(task)()
+    role_main("actor", print_result=True)  # last line: the actor's counters, for scripts and tests

@@ -28,17 +28,14 @@ import time
 import torch
 from tensordict import TensorDict
 
+from common.cli import compose_run
 from common.config.agent import AgentConfig, ScaleConfig
 from common.networks import phi
 from learner.core import LearningCore
 from learner.replay import expand
 
-SCALES = {
-    "small": ScaleConfig(name="small", conv_channels=[8, 12, 16, 16, 16], gvf_hidden=[128, 96],
-                         behaviour_hidden=[128, 64], policy_hidden=[64, 32],
-                         image_policy_hidden=[128, 64]),
-    "paper": ScaleConfig(name="paper"),
-}
+# the scales of conf/scale/ themselves (common.cli.compose_run), not copies of them
+SCALES = {name: compose_run([f"scale={name}"]).scale for name in ("small", "paper")}
 SAMPLES_PER_INSERT = 8  # the learner service's default rate limit
 
 

@@ -18,13 +18,12 @@ import json
 import torch
 
 from actors.evaluation.gvf_truth import collect, tau_returns
-from common.config.agent import AgentConfig, ScaleConfig
+from common.cli import compose_run
+from common.config.agent import AgentConfig
 from learner.core import LearningCore
 
 GAMMAS = [0.0, 0.5, 0.9, 0.95, 0.97]
-SMALL = ScaleConfig(name="small", conv_channels=[8, 12, 16, 16, 16], gvf_hidden=[128, 96],
-                    behaviour_hidden=[128, 64], policy_hidden=[64, 32], batch_size=64,
-                    lr_gvf=1e-3, lr_behaviour=1e-3, lr_critic=1e-3, lr_actor=1e-4)
+SMALL = compose_run(["scale=small"]).scale  # conf/scale/small.yaml itself
 
 
 def run(setting: dict, data, obs, truth, updates: int, warmup: int, ratio: float) -> dict:

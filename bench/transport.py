@@ -3,7 +3,7 @@ the same run; and the latency of a weight broadcast to 1 and 4 actors.
 
 Processes, all started with `spawn` (forking after zenoh is initialised hangs), on 127.0.0.1:
 
-  router     `common.zenoh_transport.run_router` on a free port
+  router     `common.transport.zenoh_backend.run_router` on a free port
   producer   a synthetic actor: one episode of valid TransitionChunks (random frames, the last
              chunk truncated at 1200 steps) encoded once; every put copies a payload, writes the
              chunk's seq and episode into it and publishes it with congestion control BLOCK on
@@ -219,15 +219,9 @@ def use_precomputed_rho(core) -> None:
 # --- wiring ---------------------------------------------------------------------------------
 
 def compose(overrides: list[str]):
-    from hydra import compose as hydra_compose
-    from hydra import initialize_config_dir
+    from common.cli import compose_run
 
-    from common.cli import CONF_DIR
-    from common.config.run import register, to_objects
-
-    register()
-    with initialize_config_dir(config_dir=CONF_DIR, version_base="1.3"):
-        return to_objects(hydra_compose("config", overrides=list(overrides)))[0]
+    return compose_run(overrides)
 
 
 def median(values: list[float]) -> float:
@@ -251,7 +245,7 @@ def main(argv: list[str] | None = None) -> dict:
     logging.basicConfig(level=logging.WARNING, stream=sys.stderr)
 
     from common.networks import make_policy
-    from common.zenoh_transport import ZenohTransport
+    from common.transport.zenoh_backend import ZenohTransport
     from learner.service import LearnerService
 
     cfg = compose(["run=bench", "learner.device=cpu", "transport=local", *args.overrides])

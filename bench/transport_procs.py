@@ -81,7 +81,7 @@ def producer_main(tcfg: TransportConfig, runs: list[str], chunk_len: int, frame_
     window 0: flat out (as fast as BLOCK puts go); window W: at most W chunks ahead of the
     learner's last credit, so that the learner's inbox never overflows.
     """
-    from common.zenoh_transport import ZenohTransport
+    from common.transport.zenoh_backend import ZenohTransport
 
     pool = episode_payloads(chunk_len, frame_shape, seed=1)
     with ZenohTransport(tcfg) as t:
@@ -148,7 +148,7 @@ def weights_actor_main(tcfg: TransportConfig, run: str, name: str, agent, scale,
     import torch
 
     from actors.acting import Acting
-    from common.zenoh_transport import ZenohTransport
+    from common.transport.zenoh_backend import ZenohTransport
 
     torch.set_num_threads(1)
     acting = Acting(agent, scale, actor_cfg, n_envs=1, seed=0)
@@ -230,7 +230,7 @@ def free_port() -> int:
 
 
 def router_main(tcfg: TransportConfig, stop, ready) -> None:
-    from common.zenoh_transport import run_router
+    from common.transport.zenoh_backend import run_router
 
     run_router(tcfg, stop=stop, ready=ready)
 

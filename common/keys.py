@@ -1,22 +1,13 @@
-"""The one wiring diagram: every Zenoh key expression of a run, who publishes it, who listens.
+"""The one wiring diagram: every key expression of a run, who publishes it, who listens.
 
-All keys live under `gvf/<run>/`. Payloads are the msgpack messages of `common.wire`.
+All keys live under `gvf/<run>/`. Payloads are the msgpack messages of `common.wire`. `WIRING`
+is the table as data; roles declare through it what they publish and subscribe
+(`Keys.publish(route, by=role, ...)`, `Keys.subscribe(route, by=role)`: a role not in the route's row
+is refused), `docs/wire.md`'s table is tested against it, and `python -m common.keys [run]`
+prints it. Roles are those of `common.roles` plus `gvfctl` (deploy/gvfctl.py, the operator).
 
-    key                                   publisher    subscribers         message            cc
-    gvf/<run>/transitions/<actor>         each actor   learner             TransitionChunk    BLOCK
-    gvf/<run>/episodes/<actor>            each actor   learner, launcher   EpisodeSummary     BLOCK
-    gvf/<run>/weights                     learner      every actor         Weights            BLOCK
-      (also a queryable answered by the learner with the latest Weights: actors `fetch` at start-up)
-    gvf/<run>/tracks                      learner      every actor         TrackTable         BLOCK
-    gvf/<run>/control                     launcher     learner, actors     Control            BLOCK
-    gvf/<run>/flow                        learner      every actor         Control            BLOCK
-      (pause / resume: the learner's rate limit, so that actors do not outrun samples-per-insert)
-    gvf/<run>/alive/<role>/<name>         liveliness token of every process; learner and launcher watch
-                                          gvf/<run>/alive/** to know who is alive (role: actor, learner, ...)
-
-`python -m common.keys [run]` prints this table for a run. `key_matches` implements the subset
-of Zenoh's key-expression matching (`*` one chunk, `**` any number of chunks) that the
-in-process transport needs.
+`key_matches` implements the subset of Zenoh's key-expression matching (`*` one chunk, `**`
+any number of chunks) that the in-process transport needs.
 """
 
 from __future__ import annotations
@@ -39,14 +30,37 @@ def check_name(name: str, what: str = "name") -> str:
 
 @dataclass(frozen=True)
 class Route:
-    """One row of the wiring diagram."""
+    """One row of the wiring diagram; `key` below gvf/<run>/, with <actor> etc. as placeholders."""
 
+    name: str
     key: str
-    publisher: str
-    subscribers: str
+    publishers: tuple[str, ...]
+    subscribers: tuple[str, ...]
     message: str
     congestion: str
     note: str = ""
+
+
+WIRING: tuple[Route, ...] = (
+    Route("transitions", "transitions/<actor>", ("actor",), ("learner",), "TransitionChunk", "BLOCK"),
+    Route("episodes", "episodes/<actor>", ("actor",), ("learner",), "EpisodeSummary", "BLOCK"),
+    Route("weights", "weights", ("learner",), ("actor", "evaluator"), "Weights", "BLOCK",
+          "also a queryable answered by the learner: actors fetch the latest at start-up"),
+    Route("tracks", "tracks", ("learner",), ("actor",), "TrackTable", "BLOCK"),
+    Route("control", "control", ("gvfctl",), ("learner", "actor"), "Control", "BLOCK",
+          "stop / pause / resume from the operator"),
+    Route("flow", "flow", ("learner",), ("actor",), "Control", "BLOCK",
+          "pause / resume: the learner's rate limit"),
+    Route("alive", "alive/<role>/<name>", ("learner", "actor"), ("learner", "gvfctl"), "-", "-",
+          "liveliness tokens; the learner watches alive/actor/*, gvfctl alive/**"),
+)
+ROUTES = {r.name: r for r in WIRING}
+
+
+def route(name: str) -> Route:
+    if name not in ROUTES:
+        raise ValueError(f"no route {name!r} in the wiring table; routes are {sorted(ROUTES)}")
+    return ROUTES[name]
 
 
 @dataclass(frozen=True)
@@ -113,21 +127,35 @@ class Keys:
         """The final chunk of a concrete key, e.g. the actor name of a transitions key."""
         return key.rsplit("/", 1)[-1]
 
-    def routes(self) -> list[Route]:
-        """The wiring diagram of this run, one Route per key."""
-        r = self.root
-        return [
-            Route(f"{r}/transitions/<actor>", "each actor", "learner", "TransitionChunk", "BLOCK"),
-            Route(f"{r}/episodes/<actor>", "each actor", "learner, launcher", "EpisodeSummary", "BLOCK"),
-            Route(self.weights, "learner", "every actor", "Weights", "BLOCK",
-                  "also a queryable: actors fetch the latest at start-up"),
-            Route(self.tracks, "learner", "every actor", "TrackTable", "BLOCK"),
-            Route(self.control, "launcher", "learner, actors", "Control", "BLOCK"),
-            Route(self.flow, "learner", "every actor", "Control", "BLOCK",
-                  "pause / resume: the learner's rate limit"),
-            Route(f"{r}/alive/<role>/<name>", "every process (liveliness)", "learner, launcher",
-                  "-", "-", "watch " + self.all_alive()),
-        ]
+    def publish(self, name: str, by: str, /, **fields: str) -> str:
+        """The concrete key role `by` publishes route `name` on; refused if the wiring table says
+        `by` does not publish it (e.g. publish('transitions', 'actor', actor='a3'))."""
+        r = route(name)
+        if by not in r.publishers:
+            raise ValueError(f"role {by!r} does not publish {name!r} (publishers: {', '.join(r.publishers)})")
+        return self._fill(r.key, fields, wildcard=False)
+
+    def subscribe(self, name: str, by: str) -> str:
+        """The key expression role `by` subscribes to for route `name` (placeholders become `*`);
+        refused if the wiring table says `by` does not listen to it."""
+        r = route(name)
+        if by not in r.subscribers:
+            raise ValueError(f"role {by!r} does not subscribe to {name!r} (subscribers: {', '.join(r.subscribers)})")
+        return self._fill(r.key, {}, wildcard=True)
+
+    def _fill(self, key: str, fields: dict, wildcard: bool) -> str:
+        parts = []
+        for part in key.split("/"):
+            if part.startswith("<"):
+                field = part[1:-1]
+                if wildcard:
+                    part = "*"
+                elif field not in fields:
+                    raise ValueError(f"key {key!r} needs {field}=")
+                else:
+                    part = check_name(fields[field], field)
+            parts.append(part)
+        return f"{self.root}/{'/'.join(parts)}"
 
 
 def _chunks_match(pattern: list[str], key: list[str]) -> bool:
@@ -152,9 +180,9 @@ def key_matches(pattern: str, key: str) -> bool:
 def main(argv: list[str] | None = None) -> None:
     """Print the wiring diagram of a run."""
     argv = sys.argv[1:] if argv is None else argv
-    keys = Keys(argv[0] if argv else "default")
-    for r in keys.routes():
-        print(f"{r.key:<42} {r.publisher:<30} -> {r.subscribers:<18} "
+    root = Keys(argv[0] if argv else "default").root
+    for r in WIRING:
+        print(f"{root + '/' + r.key:<38} {', '.join(r.publishers):<16} -> {', '.join(r.subscribers):<18} "
               f"{r.message:<16} {r.congestion:<6} {r.note}")
 
 

@@ -1,38 +1,31 @@
 """`gvf-train`: a whole run on one machine, and `gvf-router`.
 
-Starts a Zenoh router, the learner and `actors.count` actors as child processes (spawn: a
-fork after zenoh is initialised hangs the child), restarts a crashed actor with exponential
-backoff (and a crashed learner from its checkpoint), shows live progress, and stops
-everything on Ctrl-C, SIGTERM, a 'stop' control message or `max_seconds`.
-With `serial=true` the learner and the actors run as threads of this one process over the
-in-process transport instead (debugging, fast tests).
+Starts the roles of `common.roles` (a Zenoh router, the learner, `actors.count` actors and the
+periodic evaluator) as spawned processes, or, with `transport=inproc`, as threads of this one
+process over one in-process bus (debugging, fast tests). Either way one supervisor watches them:
 
-Roles are named by "module:function" strings and imported in the child, so this module (in
-`common`) never imports `actors` or `learner`: they meet only on the wire.
+- a crash (non-zero exit, a signal, an exception) is restarted after an exponential backoff; a
+  crashed learner resumes from its checkpoint;
+- a clean exit is final; a clean learner exit (`learner.max_updates`, a `stop` control message
+  from `gvfctl stop`) ends the run and stops every other role;
+- Ctrl-C, SIGTERM and `max_seconds` stop everything: actors and evaluator, then the learner
+  (it checkpoints), then the router.
 """
 
 from __future__ import annotations
 
 import dataclasses
-import importlib
 import logging
-import multiprocessing as mp
 import threading
 import time
 from pathlib import Path
 
 from common.config.run import RunConfig
+from common.roles import ProcessRole, ThreadRole
 
 log = logging.getLogger(__name__)
-LEARNER = "learner.service:run_learner"
-ACTOR = "actors.actor:run_actor"
-EVALUATOR = "actors.evaluation.periodic:run_evaluator"
 MAX_BACKOFF_S = 30.0
-
-
-def resolve(target: str):
-    module, name = target.split(":")
-    return getattr(importlib.import_module(module), name)
+STOP_ORDER = ("actor", "evaluator", "learner", "router")
 
 
 def actor_config(cfg: RunConfig, index: int) -> RunConfig:
@@ -41,55 +34,56 @@ def actor_config(cfg: RunConfig, index: int) -> RunConfig:
     return dataclasses.replace(cfg, actor=actor)
 
 
-def _child(role: str, cfg: RunConfig, run_dir: str, log_name: str) -> None:
-    """Body of a child process: log to a file, stop on SIGINT/SIGTERM, run the role."""
-    from common.cli import stop_on_signals
-
-    Path(run_dir, "logs").mkdir(parents=True, exist_ok=True)
-    logging.basicConfig(filename=str(Path(run_dir, "logs", f"{log_name}.log")), level=logging.INFO, format="%(asctime)s %(name)s %(levelname)s %(message)s")
-    stop = stop_on_signals()
-    if role == "router":
-        from common.zenoh_transport import run_router
-
-        run_router(cfg.transport, stop)
-    elif role == "learner":
-        resolve(LEARNER)(cfg, None, run_dir, stop)
-    elif role == "evaluator":
-        resolve(EVALUATOR)(cfg, None, run_dir, stop)
-    else:
-        resolve(ACTOR)(cfg, None, stop)
+def in_threads(cfg: RunConfig) -> bool:
+    """`transport=inproc`: every role a thread of this process (the one serial switch)."""
+    return cfg.transport.backend == "inproc"
 
 
 @dataclasses.dataclass
 class Child:
-    """One supervised process and its restart schedule."""
+    """One supervised role and its restart schedule."""
 
     role: str
     name: str
     cfg: RunConfig
-    proc: mp.Process | None = None
+    handle: ThreadRole | ProcessRole | None = None
     restarts: int = 0
     next_start: float = 0.0
+    done: bool = False
+    """Exited cleanly: never restarted."""
+
+    @property
+    def alive(self) -> bool:
+        return self.handle is not None and self.handle.alive()
 
 
 class Supervisor:
-    """Starts, watches and restarts the processes of one run."""
+    """Starts, watches, restarts and stops the roles of one run (see the module docstring)."""
 
     def __init__(self, cfg: RunConfig, run_dir: str) -> None:
         self.cfg, self.run_dir = cfg, run_dir
-        self.ctx = mp.get_context("spawn")
+        self.threads = in_threads(cfg)
+        self.bus = None
+        if self.threads:
+            from common.transport.inproc import Bus
+
+            self.bus = Bus()
         self.children: list[Child] = []
-        if cfg.transport.backend == "zenoh" and cfg.transport.mode == "client":
+        if not self.threads and cfg.transport.mode == "client":
             self.children.append(Child("router", "router", cfg))
         self.children.append(Child("learner", "learner", cfg))
         self.children += [Child("actor", f"actor-{i}", actor_config(cfg, i)) for i in range(cfg.actors.count)]
         if cfg.eval.every_updates > 0:
             self.children.append(Child("evaluator", "evaluator", cfg))
+        self.ended: str | None = None
+        """Why the run ended by itself (a role's clean exit), or None."""
 
     def start(self, child: Child) -> None:
-        child.proc = self.ctx.Process(target=_child, args=(child.role, child.cfg, self.run_dir, child.name), name=child.name, daemon=False)
-        child.proc.start()
-        log.info("started %s (pid %d)", child.name, child.proc.pid)
+        if self.threads:
+            child.handle = ThreadRole(child.name, child.role, child.cfg, self.run_dir, self.bus)
+        else:
+            child.handle = ProcessRole(child.name, child.role, child.cfg, self.run_dir)
+        child.handle.start()
 
     def start_all(self) -> None:
         for child in self.children:
@@ -97,85 +91,57 @@ class Supervisor:
             if child.role == "router":
                 time.sleep(0.5)  # clients give up after transport.connect_timeout_s; give the router a head start
 
-    def watch(self) -> None:
-        """Restart whatever has exited, after its backoff."""
+    def watch(self) -> bool:
+        """Restart crashed roles after their backoff; True once a clean exit has ended the run."""
+        from common.roles import spec_of
+
         now = time.monotonic()
         for child in self.children:
-            if child.proc is None or child.proc.is_alive():
+            if child.handle is None or child.done or child.handle.alive():
+                continue
+            code = child.handle.exitcode
+            if code == 0:
+                child.done = True
+                log.info("%s exited cleanly", child.name)
+                if spec_of(child.role).ends_run:
+                    self.ended = f"{child.name} exited cleanly"
                 continue
             if child.next_start == 0.0:
                 backoff = min(MAX_BACKOFF_S, self.cfg.actors.restart_backoff_s * 2**child.restarts)
                 child.next_start = now + backoff
-                log.warning("%s exited with %s; restarting in %.1f s", child.name, child.proc.exitcode, backoff)
+                log.warning("%s crashed (exit %s); restarting in %.1f s", child.name, code, backoff)
             elif now >= child.next_start:
                 child.restarts += 1
                 child.next_start = 0.0
                 if child.role == "learner":
                     child.cfg = dataclasses.replace(child.cfg, resume=True)
                 self.start(child)
+        return self.ended is not None
 
     def stop_all(self, timeout: float = 10.0) -> None:
-        """SIGTERM every child (router last), wait, then kill what is left."""
-        order = [c for c in self.children if c.role in ("actor", "evaluator")] + [c for c in self.children if c.role == "learner"] + [c for c in self.children if c.role == "router"]
-        for group in (order[:-1], order[-1:]):
+        """Stop the roles in STOP_ORDER, each group given `timeout`; kill what is left."""
+        for role in STOP_ORDER:
+            group = [c for c in self.children if c.role == role and c.handle is not None]
             for c in group:
-                if c.proc is not None and c.proc.is_alive():
-                    c.proc.terminate()
+                c.handle.terminate()
             deadline = time.monotonic() + timeout
             for c in group:
-                if c.proc is not None:
-                    c.proc.join(max(0.1, deadline - time.monotonic()))
-                    if c.proc.is_alive():
-                        log.warning("%s did not stop in %.0f s; killing it", c.name, timeout)
-                        c.proc.kill()
-                        c.proc.join(5)
+                c.handle.join(max(0.1, deadline - time.monotonic()))
+                if c.handle.alive():
+                    log.warning("%s did not stop in %.0f s; killing it", c.name, timeout)
+                    c.handle.kill()
+                    c.handle.join(5)
+
+    def learner_result(self) -> dict | None:
+        """The learner's final counters when it ran in a thread (processes: progress.json)."""
+        learner = next(c for c in self.children if c.role == "learner")
+        return learner.handle.result if learner.handle is not None else None
 
 
-def run_serial(cfg: RunConfig, run_dir: str, stop: threading.Event) -> dict:
-    """Learner and actors as threads of this process over one in-process bus."""
-    from common.inproc_transport import Bus
-    from common.transport import make_transport
-
-    bus = Bus()
-    tcfg = dataclasses.replace(cfg.transport, backend="inproc")
-    cfg = dataclasses.replace(cfg, transport=tcfg)
-    result: dict = {}
-    learner_t = make_transport(tcfg, bus)
-    learner = threading.Thread(target=lambda: result.update(resolve(LEARNER)(cfg, learner_t, run_dir, stop)), name="learner")
-    learner.start()
-    actors = []
-    roles = [(ACTOR, (actor_config(cfg, i),), f"actor-{i}") for i in range(cfg.actors.count)]
-    if cfg.eval.every_updates > 0:
-        roles.append((EVALUATOR, (cfg,), "evaluator"))
-    for target, args, name in roles:
-        t = make_transport(tcfg, bus)
-        extra = (run_dir,) if target == EVALUATOR else ()
-        th = threading.Thread(target=resolve(target), args=(*args, t, *extra, stop), name=name)
-        th.start()
-        actors.append((th, t))
-    try:
-        start = time.monotonic()
-        while learner.is_alive() and not stop.is_set():
-            if cfg.max_seconds and time.monotonic() - start > cfg.max_seconds:
-                break
-            time.sleep(0.1)
-    finally:
-        stop.set()
-        for th, t in actors:
-            th.join(30)
-            t.close()
-        learner.join(60)
-        learner_t.close()
-    return result
-
-
-def train(cfg: RunConfig, run_dir: str, stop: threading.Event) -> None:
-    """The body of `gvf-train` once the config is composed."""
+def train(cfg: RunConfig, run_dir: str, stop: threading.Event) -> dict:
+    """The body of `gvf-train` once the config is composed; returns the learner's last counters."""
     from common.progress import Progress
 
-    if cfg.serial:
-        run_serial(cfg, run_dir, stop)
-        return
     sup = Supervisor(cfg, run_dir)
     progress = Progress(Path(run_dir), enabled=cfg.progress)
     start = time.monotonic()
@@ -184,13 +150,20 @@ def train(cfg: RunConfig, run_dir: str, stop: threading.Event) -> None:
         with progress:
             while not stop.is_set():
                 if cfg.max_seconds and time.monotonic() - start > cfg.max_seconds:
+                    log.info("max_seconds=%s reached", cfg.max_seconds)
                     break
-                sup.watch()
+                if sup.watch():
+                    log.info("run ended: %s", sup.ended)
+                    break
                 progress.update(sup.children)
-                stop.wait(0.5)
+                stop.wait(0.2 if sup.threads else 0.5)
     finally:
         sup.stop_all()
-    log.info("run finished: %s", progress.last)
+    result = sup.learner_result() or progress.read()
+    ckpt = Path(cfg.learner.checkpoint_dir)
+    progress.final(result, ckpt if ckpt.is_absolute() else Path(run_dir) / ckpt)
+    log.info("run finished: %s", result)
+    return result
 
 
 def task(cfg) -> None:
@@ -205,16 +178,6 @@ def task(cfg) -> None:
     train(run, HydraConfig.get().runtime.output_dir, stop_on_signals())
 
 
-def router_task(cfg) -> None:
-    """Hydra task of `gvf-router`: a Zenoh router from the python package."""
-    from common.config.run import to_objects
-    from common.zenoh_transport import run_router
-
-    run, _, _ = to_objects(cfg)
-    logging.basicConfig(level=logging.INFO, format="%(asctime)s %(name)s %(levelname)s %(message)s")
-    run_router(run.transport)
-
-
 def main() -> None:
     from common.cli import hydra_entry
 
@@ -222,6 +185,6 @@ def main() -> None:
 
 
 def router_main() -> None:
-    from common.cli import hydra_entry
+    from common.cli import role_main
 
-    hydra_entry(router_task)()
+    role_main("router")

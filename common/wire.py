@@ -130,6 +130,9 @@ class Control:
     command: str
     """One of CONTROL_COMMANDS: 'stop', 'pause', 'resume'."""
     reason: str = ""
+    expires_s: float = 0.0
+    """A 'pause' ends by itself this many seconds after it arrives unless repeated (0: only a
+    'resume' ends it); the learner's rate limit sets it, so that a silent learner stops nobody."""
 
 
 Message = Union[TransitionChunk, EpisodeSummary, Weights, TrackTable, Control]
@@ -173,6 +176,7 @@ _FIELDS = {
     "tracks": frozenset({"version", "steps"}),
     "control": frozenset({"command", "reason"}),
 }
+_OPTIONAL = {"control": frozenset({"expires_s"})}
 
 
 def _int(value: Any) -> Any:
@@ -202,7 +206,10 @@ def _to_map(msg: Message) -> dict:
         steps = {track: _int(n) for track, n in msg.steps.items()}
         return {"v": SCHEMA_VERSION, "type": "tracks", "version": _int(msg.version), "steps": steps}
     if isinstance(msg, Control):
-        return {"v": SCHEMA_VERSION, "type": "control", "command": msg.command, "reason": msg.reason}
+        m = {"v": SCHEMA_VERSION, "type": "control", "command": msg.command, "reason": msg.reason}
+        if msg.expires_s:
+            m["expires_s"] = float(msg.expires_s)
+        return m
     raise TypeError(f"not a wire message: {type(msg).__name__}")
 
 
@@ -265,8 +272,9 @@ def _from_map(m: Any, limits: Limits, expect: type | None) -> Message:
     if not isinstance(kind, str) or kind not in _FIELDS:
         raise WireError("schema", f"unknown message type {kind!r}")
     keys = set(m) - {"v", "type"}
-    if keys != _FIELDS[kind]:
-        missing, extra = sorted(_FIELDS[kind] - keys), sorted(keys - _FIELDS[kind])
+    optional = _OPTIONAL.get(kind, frozenset())
+    if not _FIELDS[kind] <= keys <= _FIELDS[kind] | optional:
+        missing, extra = sorted(_FIELDS[kind] - keys), sorted(keys - _FIELDS[kind] - optional)
         raise WireError("schema", f"{kind}: missing fields {missing}, unknown fields {extra}")
     if kind == "transitions":
         msg: Message = _chunk_from_map(m, limits)
@@ -285,7 +293,10 @@ def _from_map(m: Any, limits: Limits, expect: type | None) -> Message:
         command = chk.field(m, "command", str)
         if command not in CONTROL_COMMANDS:
             raise WireError("value", f"control command {command!r} not in {CONTROL_COMMANDS}")
-        msg = Control(command=command, reason=chk.text(chk.field(m, "reason", str), "reason", 1024))
+        expires = chk.real(m, "expires_s") if "expires_s" in m else 0.0
+        if not 0.0 <= expires <= 86400.0:
+            raise WireError("value", f"control expires_s {expires} not in [0, 86400]")
+        msg = Control(command=command, reason=chk.text(chk.field(m, "reason", str), "reason", 1024), expires_s=expires)
     if expect is not None and not isinstance(msg, expect):
         raise WireError("schema", f"expected {expect.__name__}, got {type(msg).__name__}")
     return msg

@@ -7,7 +7,7 @@
     python deploy/gvfctl.py router --listen tcp/0.0.0.0:7447           # a bare router, for network checks
 
 Run it with the project's Python (`.venv/bin/python`): it builds its Zenoh session exactly as
-gvf-learner and gvf-actor do (`common.zenoh_transport.zenoh_config`: the `--config` JSON5 file
+gvf-learner and gvf-actor do (`common.transport.zenoh_backend.zenoh_config`: the `--config` JSON5 file
 first, e.g. deploy/zenoh/client-tls.json5 with `--connect tls/ROUTER:7447`, then the endpoints).
 
 - `ping` opens two client sessions and sends a few messages from one to the other; they can
@@ -35,7 +35,7 @@ import zenoh
 from common.config.transport import TransportConfig
 from common.keys import Keys
 from common.wire import Control, encode
-from common.zenoh_transport import run_router, zenoh_config
+from common.transport.zenoh_backend import run_router, zenoh_config
 
 PING_PREFIX = "gvf-ping"
 """Ping keys live outside gvf/<run>/ so that no run's subscriber ever sees them."""

@@ -14,10 +14,8 @@
 
 from __future__ import annotations
 
-import dataclasses
 import json
 import logging
-import math
 import os
 import threading
 import time
@@ -28,14 +26,15 @@ import numpy as np
 import torch
 from torch.utils.tensorboard import SummaryWriter
 
-from common import wire
+from common import checkpoint, wire
 from common.config.run import RunConfig
 from common.keys import Keys
-from learner import checkpoint
 from learner.core import LearningCore
 from learner.ingest import SequenceTracker, chunks_to_transitions
+from learner.rate_limit import RateLimiter
 
 log = logging.getLogger(__name__)
+ROLE = "learner"
 
 
 def resolve_device(name: str) -> str:
@@ -62,8 +61,7 @@ class LearnerService:
         self.returns: deque = deque(maxlen=100)
         self.lags: deque = deque(maxlen=200)
         self.counters = {"inserted": 0, "episodes": 0, "chunks": 0, "flow_pauses": 0}
-        self._ready_at: int | None = None
-        self._session_updates = 0
+        self.limiter = RateLimiter(self.core.batch_size, self.lc.samples_per_insert, self.lc.max_owed_updates)
         self._held: dict | None = None
         if cfg.resume:
             self.restore()
@@ -83,25 +81,25 @@ class LearnerService:
         return True
 
     def save(self) -> Path:
-        state = {
-            "core": self.core.state_dict(with_replay=self.lc.checkpoint_replay), "tracks": self.tracks, "counters": dict(self.counters),
-            # what an evaluator needs without the learner: the acting weights and the configs that shape them
-            "policy": self.core.policy_state_dict(), "agent": dataclasses.asdict(self.cfg.agent), "scale": dataclasses.asdict(self.cfg.scale),
-        }
+        # the layout of common.checkpoint: what an evaluator reads without the learner, then ours
+        state = checkpoint.policy_entries(self.core.policy_state_dict(), self.cfg.agent, self.cfg.scale, self.core.updates)
+        state.update(core=self.core.state_dict(with_replay=self.lc.checkpoint_replay), tracks=self.tracks,
+                     counters=dict(self.counters))
         return checkpoint.save(self.ckpt_dir, self.core.updates, state)
 
     # -- wire -----------------------------------------------------------------------------
     def open(self) -> None:
         k, t = self.keys, self.t
-        self.chunks_in = t.subscribe(k.all_transitions, capacity=self.lc.inbox_chunks)
-        self.episodes_in = t.subscribe(k.all_episodes, capacity=4096)
-        self.control_in = t.subscribe(k.control, capacity=16)
-        self.weights_out, self.weights_srv = t.publisher(k.weights), t.serve_latest(k.weights)
-        self.tracks_out = t.publisher(k.tracks)
-        self.flow_out = t.publisher(k.flow)
-        self._flow_paused, self._flow_sent = False, 0.0
+        self.chunks_in = t.subscribe(k.subscribe("transitions", ROLE), capacity=self.lc.inbox_chunks)
+        self.episodes_in = t.subscribe(k.subscribe("episodes", ROLE), capacity=4096)
+        self.control_in = t.subscribe(k.subscribe("control", ROLE), capacity=16)
+        weights = k.publish("weights", ROLE)
+        self.weights_out, self.weights_srv = t.publisher(weights), t.serve_latest(weights)
+        self.tracks_out = t.publisher(k.publish("tracks", ROLE))
+        self.flow_out = t.publisher(k.publish("flow", ROLE))
+        self._flow_sent = 0.0
         self.alive = t.watch_alive(k.all_alive("actor"))
-        t.declare_alive(k.alive("learner", "learner"))
+        t.declare_alive(k.publish("alive", ROLE, role=ROLE, name=ROLE))
         self.publish_weights()
 
     def publish_weights(self) -> None:
@@ -147,27 +145,11 @@ class LearnerService:
             self.core.set_held_out(chunks_to_transitions(self._held["chunks"]))
 
     # -- training -------------------------------------------------------------------------
-    def owed_updates(self) -> int:
-        """Updates allowed by the samples-per-insert ratio and not yet done."""
-        if not self.core.ready:
-            return 0
-        if self._ready_at is None:
-            self._ready_at = self.counters["inserted"]
-        return 1 + math.floor(self._surplus() / self._per_update())
-
-    def _per_update(self) -> float:
-        """Transitions one update consumes under the samples-per-insert ratio."""
-        return self.core.batch_size / self.lc.samples_per_insert
-
-    def _surplus(self) -> float:
-        """Transitions inserted since the warm-up beyond those the updates done have consumed."""
-        return self.counters["inserted"] - self._ready_at - self._session_updates * self._per_update()
-
     def train(self, max_updates: int) -> dict:
         metrics: dict = {}
-        for _ in range(min(self.owed_updates(), max_updates)):
+        for _ in range(min(self.limiter.owed(self.counters["inserted"], self.core.ready), max_updates)):
             metrics = self.core.update() or metrics
-            self._session_updates += 1
+            self.limiter.done += 1
             self.flow(time.monotonic())  # a long run of updates must keep the pause fresh
             u = self.core.updates
             if u % self.lc.publish_every == 0:
@@ -176,27 +158,24 @@ class LearnerService:
                 self.save()
         return metrics
 
-    def data_ahead(self) -> float:
-        """Transitions ingested or waiting in the inbox beyond what the learner needs now: the
-        warm-up, then `batch / samples_per_insert` per update done."""
-        waiting = len(self.chunks_in) * self.cfg.actor.chunk_len
-        if self._ready_at is None:  # the replay, not the counters: a resumed learner may start empty
-            return len(self.core.replay) + waiting - max(self.core.warmup, 1)
-        return self._surplus() + waiting
-
     def flow(self, now: float) -> None:
-        """Rate limit on the actors' side: pause them while the learner is far behind the data
-        (which would otherwise pile up, be dropped at the inbox and take CPU from the updates)."""
+        """Rate limit on the actors' side (`learner.rate_limit`): pause them while the learner is
+        far behind the data (which would otherwise pile up, be dropped at the inbox and take CPU
+        from the updates); repeated every `flow_refresh_s` so that late actors learn it."""
         if not self.lc.max_owed_updates:
             return
-        limit = self.lc.max_owed_updates * self._per_update()
-        ahead = self.data_ahead()
-        paused = ahead > limit or (self._flow_paused and ahead > limit / 2)
-        if paused != self._flow_paused or now - self._flow_sent >= self.lc.flow_refresh_s:
+        was = self.limiter.paused
+        # the inbox's chunks are not decoded yet: count them at the mean length of those seen
+        steps = self.counters["inserted"] / self.counters["chunks"] if self.counters["chunks"] else 1.0
+        ahead = self.limiter.ahead(self.counters["inserted"], round(len(self.chunks_in) * steps),
+                                   len(self.core.replay), self.core.warmup)
+        paused = self.limiter.should_pause(ahead)
+        if paused != was or now - self._flow_sent >= self.lc.flow_refresh_s:
             command = "pause" if paused else "resume"
-            self.flow_out.put(wire.encode(wire.Control(command, reason=f"{ahead:.0f} transitions ahead")))
-            self.counters["flow_pauses"] += int(paused and not self._flow_paused)
-            self._flow_paused, self._flow_sent = paused, now
+            self.flow_out.put(wire.encode(wire.Control(command, reason=f"{ahead:.0f} transitions ahead",
+                                                       expires_s=5 * self.lc.flow_refresh_s)))
+            self.counters["flow_pauses"] += int(paused and not was)
+            self._flow_sent = now
 
     # -- the loop -------------------------------------------------------------------------
     def run(self, stop: threading.Event) -> dict:
@@ -253,7 +232,7 @@ class LearnerService:
             "actors_alive": len(self.alive.alive()),
             "actors_seen": sorted(self.seq.expected),
             "policy_version": self.core.updates,
-            "flow_paused": self._flow_paused,
+            "flow_paused": self.limiter.paused,
             "flow_pauses": self.counters["flow_pauses"],
         }
 
@@ -283,31 +262,15 @@ class LearnerService:
         os.replace(tmp, self.run_dir / "progress.json")  # the launcher reads it; never half-written
 
 
-def run_learner(cfg: RunConfig, transport, run_dir: str | Path, stop: threading.Event) -> dict:
-    """The learner role: serve until `stop`; returns the final progress counters."""
-    from common.transport import make_transport
-
-    if transport is not None:
-        return LearnerService(cfg, transport, run_dir).run(stop)
-    with make_transport(cfg.transport, stop=stop) as t:
-        result = LearnerService(cfg, t, run_dir).run(stop)
+def learner_role(ctx) -> dict:
+    """The learner role (`common.roles`): serve until ctx.stop or `learner.max_updates`; returns
+    the final progress counters."""
+    result = LearnerService(ctx.cfg, ctx.transport, ctx.run_dir).run(ctx.stop)
     log.info("learner stopped: %s", result)
     return result
 
 
-def task(cfg) -> None:
-    """Hydra task of `gvf-learner`."""
-    from hydra.core.hydra_config import HydraConfig
-
-    from common.cli import run_role
-    from common.config.run import to_objects
-
-    run, _, _ = to_objects(cfg)
-    run_dir = HydraConfig.get().runtime.output_dir
-    run_role(lambda stop: run_learner(run, None, run_dir, stop))
-
-
 def main() -> None:
-    from common.cli import hydra_entry
+    from common.cli import role_main
 
-    hydra_entry(task)()
+    role_main("learner")

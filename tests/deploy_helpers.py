@@ -16,7 +16,7 @@ import pytest
 import zenoh
 
 from common.config.transport import TransportConfig
-from common.zenoh_transport import open_router, zenoh_config
+from common.transport.zenoh_backend import open_router, zenoh_config
 
 
 REPO = Path(__file__).resolve().parents[1]

@@ -151,3 +151,54 @@ def _stack(steps: list[dict]) -> dict:
     """List over time of nested dicts of (n_envs, ...) arrays -> nested dict of tensors."""
     return {k: _stack([s[k] for s in steps]) if isinstance(v, dict)
             else torch.as_tensor(np.stack([s[k] for s in steps])) for k, v in steps[0].items()}
+
+
+class CountingVectorEnv:
+    """The LaneDriveVectorEnv contract (same-step autoreset, final_obs / final_info, on_episode_end)
+    with content that tells what happened: every camera frame is filled with its step index in
+    the episode (mod 256), alpha = step / 100, and car i's episodes end (terminated) after
+    `episode_steps[i]` steps. For driving the real actor loop (actors.actor.run_actor) in tests."""
+
+    def __init__(self, episode_steps: list[int], on_episode_end=None):
+        self.num_envs = len(episode_steps)
+        self.length = np.asarray(episode_steps)
+        self.on_episode_end = on_episode_end
+        self.t = np.zeros(self.num_envs, np.int64)
+        self.last_action = np.zeros((self.num_envs, 2), np.float32)
+        self.closed = False
+
+    def _obs(self):
+        image = np.empty((self.num_envs, 2, H, W), np.uint8)
+        for i, t in enumerate(self.t):
+            image[i, 0], image[i, 1] = t % 256, max(t - 1, 0) % 256
+        return {"image": image, "speed": np.full((self.num_envs, 1), 0.5, np.float32), "last_action": self.last_action.copy()}
+
+    def _info(self):
+        return {"alpha": self.t / 100.0, "beta": np.zeros(self.num_envs), "track": np.array(["alder"] * self.num_envs),
+                "steps": self.t.copy()}
+
+    def reset(self, seed=None):
+        self.t[:] = 0
+        return self._obs(), self._info()
+
+    def step(self, actions):
+        self.t += 1
+        self.last_action = np.asarray(actions, np.float32).copy()
+        terminated = self.t >= self.length
+        truncated = np.zeros(self.num_envs, bool)
+        reward = np.ones(self.num_envs)
+        info = self._info()
+        if terminated.any():
+            final = self._obs()
+            info["final_obs"] = np.array([{k: v[i] for k, v in final.items()} if terminated[i] else None
+                                          for i in range(self.num_envs)], dtype=object)
+            info["final_info"] = {k: v.copy() for k, v in info.items() if k != "final_obs"}
+            for i in np.flatnonzero(terminated):
+                if self.on_episode_end is not None:
+                    self.on_episode_end(int(i), {k: v[i] for k, v in info["final_info"].items()})
+                self.t[i], self.last_action[i] = 0, 0.0
+            info.update(self._info())
+        return self._obs(), reward, terminated, truncated, info
+
+    def close(self):
+        self.closed = True

@@ -8,10 +8,7 @@ import subprocess
 import sys
 from pathlib import Path
 
-from hydra import compose, initialize_config_dir
-
-from common.cli import CONF_DIR
-from common.config.run import RunConfig, register, to_objects
+from common.cli import compose_run  # noqa: F401  (the tests' way to compose conf/)
 
 BIN = Path(sys.executable).parent
 
@@ -19,16 +16,9 @@ BIN = Path(sys.executable).parent
 TINY = [
     "scale.warmup=64", "scale.batch_size=32", "scale.buffer_size=5000",
     "actor.num_envs=2", "actor.chunk_len=16", "learner.publish_every=5",
-    "learner.samples_per_insert=4", "learner.log_every=5", "learner.checkpoint_every=50",
+    "learner.samples_per_insert=4", "learner.checkpoint_every=50",
     "learner.torch_threads=1",  # leave a core to the actor and router of a test run
 ]
-
-
-def compose_run(overrides: list[str] = ()) -> RunConfig:
-    register()
-    with initialize_config_dir(config_dir=CONF_DIR, version_base="1.3"):
-        cfg = compose("config", overrides=list(overrides))
-    return to_objects(cfg)[0]
 
 
 def free_port() -> int:

@@ -291,7 +291,7 @@ def test_netns_recipe_round_trip():
         time.sleep(1.0)
         holder = subprocess.Popen(["ip", "netns", "exec", f"{prefix}-a", PY, "-c",
                                    "import sys, zenoh; from common.config.transport import TransportConfig as T;"
-                                   "from common.zenoh_transport import zenoh_config as z;"
+                                   "from common.transport.zenoh_backend import zenoh_config as z;"
                                    "s = zenoh.open(z(T(connect=['tcp/192.0.2.1:7447'])));"
                                    "t = s.liveliness().declare_token('gvf/netns/alive/actor/a0');"
                                    "print('up', flush=True); sys.stdin.read(); s.close()"],
@@ -336,7 +336,7 @@ def test_unit_command_lines_run_over_mutual_tls(certs, tmp_path):
            "CLIENT_ZENOH_CONFIG": str(patched("client-tls.json5", certs, tmp_path)),
            "CHECKPOINT_DIR": str(tmp_path / "ckpt"), "NUM_ENVS": "2",
            "RUN_ARGS": "scale=small scale.warmup=64 scale.batch_size=32 scale.buffer_size=5000",
-           "LEARNER_ARGS": "learner.device=cpu learner.publish_every=5 learner.samples_per_insert=4 learner.log_every=5",
+           "LEARNER_ARGS": "learner.device=cpu learner.publish_every=5 learner.samples_per_insert=4",
            "ACTOR_ARGS": "actor.chunk_len=16"}
     procs = []
     try:

@@ -18,7 +18,7 @@ import zenoh
 from common.config.transport import TransportConfig
 from common.keys import Keys
 from common.wire import Control, decode
-from common.zenoh_transport import open_router, zenoh_config
+from common.transport.zenoh_backend import open_router, zenoh_config
 
 from tests.deploy_helpers import free_port, patched, router_process, client, round_trip, refused, gvfctl, certs, DEPLOY, ZENOH_DIR, PY  # noqa: F401  (certs is a fixture)
 

@@ -9,7 +9,7 @@ import numpy as np
 from actors.evaluation.evaluate import evaluate
 from actors.evaluation.periodic import better
 from actors.evaluation.policies import checkpoint_policy, kinematic_policy
-from common.launch import run_serial
+from common.launch import train
 from tests.helpers import BIN, TINY, compose_run
 
 FIGURES = ("lane_centeredness.png", "distributions.png")
@@ -74,9 +74,9 @@ def test_kinematic_controller_laps_every_test_road_with_no_near_out_of_lane(tmp_
 
 def test_short_training_then_eval_and_comparison_of_its_checkpoint_write_tables_figures_and_curves(tmp_path):
     run_dir = tmp_path / "run"
-    cfg = compose_run([*TINY, "serial=true", "actors.count=1", "max_seconds=60", "learner.max_updates=40", "eval.every_updates=20", "eval.directions=[ccw]"])
+    cfg = compose_run([*TINY, "transport=inproc", "progress=false", "actors.count=1", "max_seconds=60", "learner.max_updates=40", "eval.every_updates=20", "eval.directions=[ccw]"])
     stop = threading.Event()
-    run_serial(cfg, str(run_dir), stop)
+    train(cfg, str(run_dir), stop)
     lines = [json.loads(x) for x in (run_dir / "eval.jsonl").read_text().splitlines()]
     assert lines and lines[0]["updates"] >= 20 and len(lines[0]["drives"]) == 6  # periodic evaluation ran
     best = max(lines, key=lambda x: (x["validation"]["lap_completed"], x["validation"]["reward_per_s"]))  # chosen on validation

@@ -5,6 +5,8 @@ import json
 import os
 import re
 import signal
+import subprocess
+import sys
 import time
 
 import msgpack
@@ -160,25 +162,85 @@ def test_router_restart_resumes_traffic_and_lost_chunks_are_counted_exactly(tmp_
         run.close()
 
 
-def test_gvf_train_restarts_a_killed_actor_and_stops_on_sigterm(tmp_path):
+def _pid(log, name, other_than=None):
+    """The pid of the last start of role `name` in a gvf-train log (None if not (re)started yet)."""
+    pids = [int(p) for p in re.findall(r"started %s \(pid (\d+)\)" % name, log.read_text())]
+    pids = [p for p in pids if p != other_than]
+    return pids[-1] if pids else None
+
+
+def _wait_pid(log, name, other_than=None, timeout=60):
+    deadline = time.monotonic() + timeout
+    while time.monotonic() < deadline:
+        if (pid := _pid(log, name, other_than)) is not None:
+            return pid
+        time.sleep(0.3)
+    raise AssertionError(f"{name} was not (re)started: {log.read_text()[-2000:]}")
+
+
+def _wait_text(path, text, timeout):
+    deadline = time.monotonic() + timeout
+    while time.monotonic() < deadline:
+        if path.exists() and text in path.read_text():
+            return
+        time.sleep(0.3)
+    raise AssertionError(f"{text!r} not in {path} after {timeout} s")
+
+
+def _gone(pid):
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return True
+    return False
+
+
+def _train_args(tmp_path, *extra):
     endpoint = f"tcp/127.0.0.1:{free_port()}"
-    args = [*TINY, f"transport.connect=[{endpoint}]", f"transport.router_listen=[{endpoint}]", "actors.count=2", "actors.restart_backoff_s=0.5",
-            "progress=false", "run=train", f"hydra.run.dir={tmp_path}"]
-    proc = script("gvf-train", args, tmp_path / "train.log")
+    return endpoint, [*TINY, f"transport.connect=[{endpoint}]", f"transport.router_listen=[{endpoint}]", "actors.restart_backoff_s=0.5",
+                      "progress=false", "run=train", f"hydra.run.dir={tmp_path}", *extra]
+
+
+def test_gvf_train_restarts_a_killed_actor_resumes_a_killed_learner_and_gvfctl_stop_ends_it(tmp_path):
+    endpoint, args = _train_args(tmp_path, "actors.count=2", "learner.checkpoint_every=20")
+    log = tmp_path / "train.log"
+    proc = script("gvf-train", args, log)
     try:
         progress = tmp_path / "progress.json"
         wait_for(progress, lambda p: p["updates"] > 0 and p["actors_alive"] == 2, 150, "training with 2 actors")
-        pid = int(re.search(r"started actor-1 \(pid (\d+)\)", (tmp_path / "train.log").read_text()).group(1))
-        os.kill(pid, signal.SIGKILL)
-        before = read_json(progress)["updates"]
-        deadline = time.monotonic() + 60
-        while time.monotonic() < deadline and not re.search(r"started actor-1 \(pid (?!%d\))\d+\)" % pid, (tmp_path / "train.log").read_text()):
-            time.sleep(0.5)
-        assert re.search(r"actor-1 exited with -9; restarting", (tmp_path / "train.log").read_text())
-        wait_for(progress, lambda p: p["updates"] > before + 5 and p["actors_alive"] == 2, 90, "training after the restart")
-        t0 = time.monotonic()
-        proc.send_signal(signal.SIGTERM)
-        proc.wait(30)
-        assert proc.returncode == 0 and time.monotonic() - t0 < 30
+        actor = _pid(log, "actor-1")
+        os.kill(actor, signal.SIGKILL)
+        _wait_pid(log, "actor-1", other_than=actor)
+        assert re.search(r"actor-1 crashed \(exit -9\); restarting", log.read_text())
+        wait_for(progress, lambda p: p["updates"] >= 25 and p["actors_alive"] == 2, 90, "a checkpoint after the actor's restart")
+        learner = _pid(log, "learner")
+        os.kill(learner, signal.SIGKILL)
+        _wait_pid(log, "learner", other_than=learner)
+        assert re.search(r"learner crashed \(exit -9\); restarting", log.read_text())
+        _wait_text(tmp_path / "logs" / "learner.log", "resumed from", 60)
+        wait_for(progress, lambda p: p["updates"] >= 30, 90, "training after the learner resumed")
+        pids = [int(p) for p in re.findall(r"started \S+ \(pid (\d+)\)", log.read_text())]
+        out = subprocess.run([sys.executable, "deploy/gvfctl.py", "stop", "--connect", endpoint, "--run", "train"],
+                             capture_output=True, text=True, timeout=60)
+        assert out.returncode == 0, out.stderr
+        proc.wait(60)
+        text = log.read_text()
+        assert proc.returncode == 0 and "learner exited cleanly" in text and "run ended" in text
+        assert text.count("restarting") == 2  # the stop restarted nothing
+        assert all(_gone(p) for p in pids)
     finally:
         stop(proc)
+
+
+def test_gvf_train_ends_by_itself_at_max_updates_with_every_child_stopped(tmp_path):
+    _, args = _train_args(tmp_path, "actors.count=1", "learner.max_updates=20", "eval.every_updates=10", "eval.directions=[ccw]")
+    proc = script("gvf-train", args, tmp_path / "train.log")
+    try:
+        proc.wait(240)
+    finally:
+        stop(proc)
+    text = (tmp_path / "train.log").read_text()
+    assert proc.returncode == 0, text[-3000:]
+    assert "learner exited cleanly" in text and "restarting" not in text
+    pids = [int(p) for p in re.findall(r"started \S+ \(pid (\d+)\)", text)]
+    assert len(pids) == 4 and all(_gone(p) for p in pids)  # router, learner, actor, evaluator

@@ -1,14 +1,22 @@
-"""Serial mode: learner and an actor in one process over the in-process transport."""
+"""transport=inproc: every role a thread of one process over the in-process transport."""
 
 import threading
 
-from common.launch import run_serial
+from common.launch import train
 from tests.helpers import TINY, compose_run
 
 
-def test_serial_run_trains_and_actor_policy_version_rises(tmp_path):
-    cfg = compose_run([*TINY, "serial=true", "actors.count=1", "max_seconds=40", "learner.max_updates=30"])
-    result = run_serial(cfg, str(tmp_path), threading.Event())
+def test_inproc_run_trains_in_one_process_and_stops_by_itself_at_max_updates(tmp_path):
+    cfg = compose_run([*TINY, "transport=inproc", "progress=false", "actors.count=1", "learner.max_updates=30"])
+    stop = threading.Event()
+    watchdog = threading.Timer(120, stop.set)  # only if the run does not end by itself
+    watchdog.start()
+    try:
+        result = train(cfg, str(tmp_path), stop)
+    finally:
+        watchdog.cancel()
+    assert not stop.is_set(), "the run did not end at learner.max_updates"
+    assert not [t.name for t in threading.enumerate() if t.name in ("learner", "actor-0")]  # every role stopped
     assert result["updates"] >= 30
     assert result["inserted"] >= 64 and result["episodes"] > 0
     assert result["rejected"] == 0 and result["lost_chunks"] == 0
@@ -20,11 +28,11 @@ def test_learner_rate_limit_pauses_the_actors_instead_of_piling_up_data(tmp_path
     """samples_per_insert 64 at batch 32: each transition owes 2 updates, far more than a tiny
     learner keeps up with. With the flow limit the actor waits for the updates; without it
     the actor runs ahead."""
-    base = [*TINY, "serial=true", "actors.count=1", "learner.samples_per_insert=64",
+    base = [*TINY, "transport=inproc", "progress=false", "actors.count=1", "learner.samples_per_insert=64",
             "learner.max_updates=150", "max_seconds=90",
             "agent.behaviour_warmup_updates=0"]  # its seconds before update 1 let the actor run on: not what this measures
-    on = run_serial(compose_run([*base, "learner.max_owed_updates=8"]), str(tmp_path / "on"), threading.Event())
-    off = run_serial(compose_run([*base, "learner.max_owed_updates=0"]), str(tmp_path / "off"), threading.Event())
+    on = train(compose_run([*base, "learner.max_owed_updates=8"]), str(tmp_path / "on"), threading.Event())
+    off = train(compose_run([*base, "learner.max_owed_updates=0"]), str(tmp_path / "off"), threading.Event())
     assert on["updates"] >= 150 and off["updates"] >= 150
     assert on["flow_pauses"] >= 1 and off["flow_pauses"] == 0
     needed = 64 + 150 * 32 / 64  # the warm-up, then batch / samples_per_insert per update

@@ -21,8 +21,8 @@ import numpy as np
 import pytest
 
 from common.config.transport import TransportConfig
-from common.inbox import BoundedInbox
-from common.inproc_transport import Bus, InprocTransport
+from common.transport.inbox import BoundedInbox
+from common.transport.inproc import Bus, InprocTransport
 from common.keys import Keys, key_matches
 from common.transport import Transport, make_transport
 from common.wire import Control, TransitionChunk, Weights, WireError, decode, encode
@@ -84,7 +84,8 @@ def test_keys_and_matching():
     for bad in ("a/b", "*", "", "a b", "$x", ".."):
         with pytest.raises(ValueError):
             keys.transitions(bad)
-    assert len(keys.routes()) == 7
+    assert keys.publish("transitions", "actor", actor="a7") == keys.transitions("a7")  # the table and the builders agree
+    assert keys.subscribe("transitions", "learner") == keys.all_transitions
 
 
 # --- in-process transport ------------------------------------------------------------------
@@ -154,13 +155,13 @@ def client_cfg(port: int, **kw) -> TransportConfig:
 
 
 def _run_router(cfg: TransportConfig, ready) -> None:
-    from common.zenoh_transport import run_router
+    from common.transport.zenoh_backend import run_router
 
     run_router(cfg, ready=ready)
 
 
 def _hold_token(cfg: TransportConfig, key: str, ready) -> None:
-    from common.zenoh_transport import ZenohTransport
+    from common.transport.zenoh_backend import ZenohTransport
 
     with ZenohTransport(cfg) as t:
         t.declare_alive(key)
@@ -197,7 +198,7 @@ def router_port():
 
 
 def test_zenoh_config_from_transport_config():
-    from common.zenoh_transport import zenoh_config
+    from common.transport.zenoh_backend import zenoh_config
 
     cfg = TransportConfig(mode="peer", listen=["tcp/127.0.0.1:0"], max_message_size=12345,
                           zenoh_overrides={"transport/link/tx/lease": "3000"})
@@ -217,7 +218,7 @@ def test_zenoh_config_from_transport_config():
 
 
 def test_zenoh_config_file_then_fields(tmp_path):
-    from common.zenoh_transport import zenoh_config
+    from common.transport.zenoh_backend import zenoh_config
 
     path = tmp_path / "zenoh.json5"
     path.write_text('{mode: "router", transport: {link: {tx: {lease: 4000}}}}')
@@ -227,7 +228,7 @@ def test_zenoh_config_file_then_fields(tmp_path):
 
 
 def test_run_router_stops_on_its_event():
-    from common.zenoh_transport import ZenohTransport, run_router
+    from common.transport.zenoh_backend import ZenohTransport, run_router
 
     port = free_port()
     stop, ready = threading.Event(), threading.Event()
@@ -247,7 +248,7 @@ def test_run_router_stops_on_its_event():
 
 
 def test_zenoh_pub_sub_through_router(router_port):
-    from common.zenoh_transport import ZenohTransport
+    from common.transport.zenoh_backend import ZenohTransport
 
     keys = Keys("pubsub")
     cfg = client_cfg(router_port)
@@ -271,7 +272,7 @@ def test_zenoh_pub_sub_through_router(router_port):
 
 
 def test_zenoh_full_inbox_counts_drops(router_port):
-    from common.zenoh_transport import ZenohTransport
+    from common.transport.zenoh_backend import ZenohTransport
 
     keys = Keys("drops")
     cfg = client_cfg(router_port)
@@ -289,7 +290,7 @@ def test_zenoh_full_inbox_counts_drops(router_port):
 
 
 def test_zenoh_queryable_answers_latest_weights(router_port):
-    from common.zenoh_transport import ZenohTransport
+    from common.transport.zenoh_backend import ZenohTransport
 
     keys = Keys("query")
     cfg = client_cfg(router_port)
@@ -303,7 +304,7 @@ def test_zenoh_queryable_answers_latest_weights(router_port):
 
 
 def test_zenoh_liveliness_sees_a_killed_process_go(router_port):
-    from common.zenoh_transport import ZenohTransport
+    from common.transport.zenoh_backend import ZenohTransport
 
     keys = Keys("alive")
     cfg = client_cfg(router_port)
@@ -329,7 +330,7 @@ def test_zenoh_liveliness_sees_a_killed_process_go(router_port):
 
 
 def test_zenoh_peer_mode_without_router():
-    from common.zenoh_transport import ZenohTransport
+    from common.transport.zenoh_backend import ZenohTransport
 
     port = free_port()
     listener = TransportConfig(mode="peer", listen=[f"tcp/127.0.0.1:{port}"], connect=[])
@@ -343,7 +344,7 @@ def test_zenoh_peer_mode_without_router():
 
 
 def test_zenoh_client_without_router_raises_connection_error():
-    from common.zenoh_transport import ZenohTransport
+    from common.transport.zenoh_backend import ZenohTransport
 
     with pytest.raises(ConnectionError):
         ZenohTransport(TransportConfig(mode="client", connect=[f"tcp/127.0.0.1:{free_port()}"],
@@ -353,7 +354,7 @@ def test_zenoh_client_without_router_raises_connection_error():
 def test_unclosed_session_does_not_hang_the_interpreter():
     script = textwrap.dedent("""
         from common.config.transport import TransportConfig
-        from common.zenoh_transport import ZenohTransport
+        from common.transport.zenoh_backend import ZenohTransport
         t = ZenohTransport(TransportConfig(mode="peer", listen=[], connect=[]))
         t.subscribe("gvf/x/transitions/*"); t.serve_latest("gvf/x/weights")
         t.watch_alive("gvf/x/alive/**"); t.declare_alive("gvf/x/alive/actor/a")

@@ -291,7 +291,7 @@ def test_act_with_target_broadcasts_the_polyak_averaged_actor(data):
     sent, online = core.policy_state_dict(), core.nets.policy.state_dict()
     target = core.ddpg.loss_module.target_actor_network_params
     key = "branches.0.0.weight"
-    assert torch.equal(sent[f"actor.{key}"], target["module", *key.split(".")])
+    assert torch.equal(sent[f"actor.{key}"], target[("module", *key.split("."))])
     assert not torch.equal(sent[f"actor.{key}"], online[f"actor.{key}"])
     assert all(torch.equal(sent[k], online[k]) for k in online if k.startswith("gvf."))  # no target GVF
 

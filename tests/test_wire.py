@@ -355,3 +355,16 @@ def test_docs_example_is_a_valid_chunk():
     exec(compile(example, "docs/wire.md", "exec"), scope)
     chunk = decode(scope["payload"], expect=TransitionChunk)
     assert chunk.actor == "ext-1" and chunk.num_steps == 2 and bool(chunk.terminated[-1])
+
+
+def test_control_pause_carries_its_expiry_and_an_out_of_range_one_is_refused():
+    pause = wire.decode(wire.encode(wire.Control("pause", reason="ahead", expires_s=5.0)))
+    assert (pause.command, pause.expires_s) == ("pause", 5.0)
+    assert wire.decode(wire.encode(wire.Control("stop"))).expires_s == 0.0  # optional: absent means none
+    m = {"v": wire.SCHEMA_VERSION, "type": "control", "command": "pause", "reason": "", "expires_s": -1.0}
+    with pytest.raises(wire.WireError) as err:
+        wire.decode(msgpack.packb(m))
+    assert err.value.kind == "value"
+    m["expires_s"], m["other"] = 1.0, 2
+    with pytest.raises(wire.WireError, match="unknown fields"):
+        wire.decode(msgpack.packb(m))

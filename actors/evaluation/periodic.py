@@ -9,14 +9,12 @@ Choosing on the test roads themselves would make any number reported from that p
 
 from __future__ import annotations
 
-import dataclasses
 import json
 import logging
 import threading
 import time
 from pathlib import Path
 
-import torch
 from torch.utils.tensorboard import SummaryWriter
 
 from actors.acting import Acting
@@ -24,13 +22,12 @@ from actors.evaluation.evaluate import evaluate, summary
 from actors.evaluation.main import eval_env_kwargs
 from actors.envs.tracks import track_names
 from actors.evaluation.policies import network_policy
-from common import wire
+from common import checkpoint, wire
 from common.config.run import RunConfig
 from common.keys import Keys
-from common.transport import make_transport
 
 log = logging.getLogger(__name__)
-BEST = "best-policy.pt"
+BEST = checkpoint.BEST
 
 
 def better(mean: dict, best: dict | None) -> bool:
@@ -54,26 +51,27 @@ def validate(policy, cfg: RunConfig) -> dict:
 
 
 def save_best(path: Path, acting: Acting, cfg: RunConfig, updates: int, validation: dict, test: dict) -> None:
-    """The evaluated policy in the learner checkpoint's layout (actors.evaluation.policies), atomically."""
-    path.parent.mkdir(parents=True, exist_ok=True)
-    tmp = path.with_suffix(".tmp")
-    torch.save({"policy": acting.policy.state_dict(), "agent": dataclasses.asdict(cfg.agent), "scale": dataclasses.asdict(cfg.scale),
-                "core": {"updates": updates}, "validation": validation, "eval": test}, tmp)
-    tmp.replace(path)
+    """The evaluated policy in the layout of common.checkpoint, atomically."""
+    state = checkpoint.policy_entries(acting.policy.state_dict(), cfg.agent, cfg.scale, updates)
+    checkpoint.write(path, {**state, "validation": validation, "eval": test})
 
 
-def run_evaluator(cfg: RunConfig, transport, run_dir: str | Path, stop: threading.Event) -> None:
+def evaluator_role(ctx) -> None:
+    """The evaluator role (`common.roles`)."""
+    run_evaluator(ctx.cfg, ctx.transport, ctx.run_dir, ctx.stop)
+
+
+def run_evaluator(cfg: RunConfig, t, run_dir: str | Path, stop: threading.Event) -> None:
     keys, every = Keys(cfg.run), cfg.eval.every_updates
-    t = transport if transport is not None else make_transport(cfg.transport)
     acting = Acting(cfg.agent, cfg.scale, cfg.actor, 1, seed=0)
     rejects = wire.RejectCounter()
     writer = SummaryWriter(str(Path(run_dir) / "tb" / "eval"))
     due = every
     best_path = Path(run_dir) / "checkpoints" / BEST
     validation_tracks(cfg.eval.validation_tracks)  # a bad list is refused before any drive
-    best = torch.load(best_path, weights_only=False).get("validation") if best_path.exists() else None  # a restarted evaluator keeps the bar
+    best = checkpoint.load(best_path).get("validation") if best_path.exists() else None  # a restarted evaluator keeps the bar
     try:
-        weights_in = t.subscribe(keys.weights, capacity=1, overflow="drop_old")
+        weights_in = t.subscribe(keys.subscribe("weights", "evaluator"), capacity=1, overflow="drop_old")
         while not stop.is_set():
             got = weights_in.get(timeout=0.5)
             msg = rejects.decode(got.payload, expect=wire.Weights, key=got.key) if got is not None else None
@@ -100,5 +98,3 @@ def run_evaluator(cfg: RunConfig, transport, run_dir: str | Path, stop: threadin
             due = (msg.version // every + 1) * every
     finally:
         writer.close()
-        if transport is None:
-            t.close()

@@ -10,6 +10,7 @@ import numpy as np
 import torch
 
 from actors.controllers.kinematic import KinematicController
+from common import checkpoint
 from common.config.agent import AgentConfig, ScaleConfig
 from common.networks import make_policy
 
@@ -41,13 +42,8 @@ def _known(schema, values: dict):
 
 def checkpoint_policy(path: str | Path):
     """The acting network saved in a learner checkpoint (file, or the newest in a folder)."""
-    path = Path(path)
-    if path.is_dir():
-        found = sorted(path.glob("ckpt-*.pt")) or sorted(path.glob("**/checkpoints/ckpt-*.pt"))
-        if not found:
-            raise FileNotFoundError(f"no checkpoint (ckpt-*.pt) under {path}")
-        path = found[-1]
-    state = torch.load(path, map_location="cpu", weights_only=False)  # our own file: configs and counters
+    path = checkpoint.find(path)
+    state = checkpoint.load(path)
     if "policy" not in state:
         raise ValueError(f"{path} holds no policy weights (written by an older learner?)")
     agent, scale = _known(AgentConfig, state["agent"]), _known(ScaleConfig, state["scale"])

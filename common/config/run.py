@@ -75,8 +75,6 @@ class LearnerConfig:
     """Where checkpoints are written (relative paths are under the run directory)."""
     checkpoint_replay: bool = False
     """Also save the replay buffer in checkpoints (large)."""
-    log_every: int = 100
-    """Write TensorBoard scalars every this many updates."""
     track_table_every_s: float = 5.0
     """Publish the global track table this often."""
     ingest_batch: int = 64
@@ -127,8 +125,6 @@ class RunConfig:
     """Seed of networks and simulators."""
     resume: bool = False
     """Learner: restore the latest checkpoint in learner.checkpoint_dir."""
-    serial: bool = False
-    """gvf-train: run learner and actors in one process over the in-process transport."""
     progress: bool = True
     """gvf-train: show a live progress display."""
     env: EnvConfig = field(default_factory=EnvConfig)

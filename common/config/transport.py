@@ -2,8 +2,8 @@
 
 One dataclass, registered in Hydra's ConfigStore by whoever composes the configs; every
 field has a one-line docstring. The Zenoh session is built from it by
-`common.zenoh_transport.zenoh_config`; `backend: inproc` swaps Zenoh for the in-process
-transport (serial mode, fast tests).
+`common.transport.zenoh_backend.zenoh_config`; `backend: inproc` swaps Zenoh for the in-process
+transport (`gvf-train transport=inproc`: every role a thread of one process; fast tests).
 """
 
 from __future__ import annotations
@@ -19,7 +19,7 @@ class TransportConfig:
     """How to reach the other processes of a run (Zenoh) and the limits on what crosses it."""
 
     backend: str = "zenoh"
-    """'zenoh' (real network) or 'inproc' (every role in one process, for serial mode and tests)."""
+    """'zenoh' (real network) or 'inproc' (every role a thread of one gvf-train process, and tests)."""
 
     mode: str = "client"
     """Zenoh mode of learner and actors: 'client' (talk through a router), 'peer' or 'router'."""

@@ -27,8 +27,8 @@ from typing import Any, Callable
 import zenoh
 
 from common.config.transport import TransportConfig
-from common.inbox import BoundedInbox
-from common.transport import (AliveWatcher, LatestValue, Received, Subscription, Token,
+from common.transport.inbox import BoundedInbox
+from common.transport.interface import (AliveWatcher, LatestValue, Received, Subscription, Token,
                               check_congestion)
 from common.wire import WireError
 
@@ -253,3 +253,8 @@ def run_router(cfg: TransportConfig, stop: Any = None, ready: Any = None) -> Non
     finally:
         for sig, handler in previous.items():
             signal.signal(sig, handler)
+
+
+def router_role(ctx) -> None:
+    """The router role (`common.roles`): the run's router until ctx.stop."""
+    run_router(ctx.cfg.transport, ctx.stop)

@@ -1,10 +1,10 @@
-"""The in-process transport: the `Transport` interface without a network, for serial mode and tests.
+"""The in-process transport: the `Transport` interface without a network, for `transport=inproc` runs and tests.
 
 Every `InprocTransport` built on the same `Bus` sees the others' puts, latest values and
 liveliness tokens, with the same semantics as the Zenoh transport: puts land in each matching
 subscriber's bounded inbox (full: counted and dropped), `fetch` answers from a matching
 `serve_latest`, tokens appear and disappear for watchers. A transport built without a bus
-gets a private one, so serial mode creates one `Bus` and hands it to every role.
+gets a private one, so `gvf-train transport=inproc` creates one `Bus` and hands it to every role.
 """
 
 from __future__ import annotations
@@ -14,7 +14,7 @@ from collections import Counter
 
 from common.config.transport import TransportConfig
 from common.keys import key_matches
-from common.transport import (AliveWatcher, LatestValue, Received, Subscription, Token,
+from common.transport.interface import (AliveWatcher, LatestValue, Received, Subscription, Token,
                               check_congestion)
 from common.wire import WireError
 

@@ -1,8 +1,8 @@
 """The transport interface between actors, learner and launcher, and what implementations share.
 
-`Transport` is the one interface; `common.zenoh_transport.ZenohTransport` (real network) and
-`common.inproc_transport.InprocTransport` (one process: serial mode, fast tests) implement it,
-and `make_transport(cfg)` picks one from `TransportConfig.backend`. Payloads are bytes (the
+`Transport` is the one interface; `common.transport.zenoh_backend.ZenohTransport` (real network) and
+`common.transport.inproc.InprocTransport` (one process: `transport=inproc`, fast tests) implement it,
+and `common.transport.make_transport(cfg)` picks one from `TransportConfig.backend`. Payloads are bytes (the
 messages of `common.wire`); keys come from `common.keys`. The loops it serves:
 
     # actor (cfg: the run's config; cfg.transport a TransportConfig)
@@ -30,7 +30,7 @@ messages of `common.wire`); keys come from `common.keys`. The loops it serves:
             log(chunks_in.dropped, rejects.counts, actors.alive())
 
 Receiving never runs user code on the transport's threads: a callback only pushes onto the
-receiver's own bounded inbox (`common.inbox`) and returns; the owner's loop drains it.
+receiver's own bounded inbox (`common.transport.inbox`) and returns; the owner's loop drains it.
 """
 
 from __future__ import annotations
@@ -39,8 +39,7 @@ import threading
 from dataclasses import dataclass
 from typing import Callable, Protocol, runtime_checkable
 
-from common.config.transport import TransportConfig
-from common.inbox import BoundedInbox
+from common.transport.inbox import BoundedInbox
 
 
 @dataclass(frozen=True)
@@ -199,20 +198,3 @@ def check_congestion(congestion: str) -> str:
     if congestion not in ("block", "drop"):
         raise ValueError(f"congestion must be 'block' or 'drop', got {congestion!r}")
     return congestion
-
-
-def make_transport(cfg: TransportConfig, bus: object | None = None, stop: object | None = None) -> Transport:
-    """The transport `cfg.backend` names; `bus` joins in-process transports of one process;
-    `stop` (an Event) ends an endless wait for a router (connect_timeout_s < 0)."""
-    if cfg.backend == "zenoh":
-        # imported here so that serial mode and tests never load zenoh
-        from common.zenoh_transport import ZenohTransport
-
-        return ZenohTransport(cfg, stop)
-    if cfg.backend == "inproc":
-        from common.inproc_transport import Bus, InprocTransport
-
-        if bus is not None and not isinstance(bus, Bus):
-            raise TypeError(f"bus must be an inproc Bus, got {type(bus).__name__}")
-        return InprocTransport(cfg, bus)
-    raise ValueError(f"transport backend must be 'zenoh' or 'inproc', got {cfg.backend!r}")
