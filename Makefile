@@ -21,7 +21,10 @@ train: $(STAMP)
 demo: $(STAMP)
 	$(PY) -m actors.demo
 
+# ruff (lint and format check, configured in pyproject.toml) first: it takes a second
 test: $(STAMP)
+	$(VENV)/bin/ruff check .
+	$(VENV)/bin/ruff format --check .
 	$(PY) -m pytest -q
 
 bench: $(STAMP)

@@ -13,7 +13,8 @@ from actors.exploration import OrnsteinUhlenbeck
 from common.config.agent import AgentConfig, ScaleConfig
 from common.config.run import ActorConfig
 from common.networks import make_policy
-from common.wire import Weights
+from common.wire import RejectCounter, Weights, WireError
+from common.wire_rules import check_weights
 
 
 class Acting:
@@ -31,15 +32,23 @@ class Acting:
 
     def load(self, weights: Weights) -> bool:
         """Adopt newer weights, or any from a new learner epoch (a resumed learner counts from its
-        checkpoint); returns False (and keeps the old ones) for a stale set, raises for a mismatched one."""
+        checkpoint); returns False (and keeps the old ones) for a stale set. A set that does not
+        fit this policy (names, shapes, dtypes) or holds a non-finite value raises
+        WireError('weights') before anything is loaded (`common.wire_rules.check_weights`)."""
         if weights.epoch == self.epoch and weights.version <= self.version:
             return False
-        own = self.policy.state_dict()
-        if set(weights.tensors) != set(own) or any(tuple(weights.tensors[k].shape) != tuple(v.shape) for k, v in own.items()):
-            raise ValueError(f"weights v{weights.version} do not fit this actor's policy (agent/scale differ from the learner's?)")
+        check_weights(weights, self.policy.state_dict())
         self.policy.load_state_dict({k: torch.from_numpy(np.array(v, copy=True)) for k, v in weights.tensors.items()})
         self.version, self.epoch = weights.version, weights.epoch
         return True
+
+    def adopt(self, weights: Weights, rejects: RejectCounter, key: str) -> bool:
+        """`load`, with a set that does not fit counted by `rejects` and dropped (the old one kept)."""
+        try:
+            return self.load(weights)
+        except WireError as err:
+            rejects.reject(err, key)
+            return False
 
     @torch.no_grad()
     def act(self, obs: dict, info: dict, explore: bool = True) -> np.ndarray:

@@ -31,9 +31,11 @@ from actors.track_sampling import PriorityTrackSampler
 from common import wire
 from common.config.run import RunConfig
 from common.keys import Keys
+from common.wire_rules import check_tracks
 
 log = logging.getLogger(__name__)
 ROLE = "actor"
+SAMPLED = ("train", "test", "all")
 
 
 def env_kwargs(cfg: RunConfig) -> dict:
@@ -50,10 +52,13 @@ def actor_seed(seed: int, name: str) -> int:
 def make_env(cfg: RunConfig, sampler: PriorityTrackSampler) -> LaneDriveVectorEnv:
     """The actor's simulators. At each reset the sampler draws the car's next road, having first
     recorded the steps of the episode that just ended (a named or procedural road bypasses it)."""
-    sampled = cfg.env.track in ("train", "test", "all")
-    return LaneDriveVectorEnv(cfg.actor.num_envs, track_chooser=(lambda i: sampler.sample()) if sampled else None,
-                              on_episode_end=lambda i, info: sampler.record(str(info["track"]), int(info["steps"])),
-                              **env_kwargs(cfg))
+    sampled = cfg.env.track in SAMPLED
+    return LaneDriveVectorEnv(
+        cfg.actor.num_envs,
+        track_chooser=(lambda i: sampler.sample()) if sampled else None,
+        on_episode_end=lambda i, info: sampler.record(str(info["track"]), int(info["steps"])),
+        **env_kwargs(cfg),
+    )
 
 
 def _one(obs: dict, i: int) -> dict:
@@ -69,9 +74,21 @@ def run_actor(cfg: RunConfig, t, stop: threading.Event, env_factory=make_env) ->
     rng = np.random.default_rng(seed)
     sampler = PriorityTrackSampler(track_names(a.track_split), rng)
     env = env_factory(cfg, sampler)
+    sampled = cfg.env.track in SAMPLED  # named and procedural roads bypass priority track sampling
+    known_roads = set(track_names("all"))
     acting = Acting(cfg.agent, cfg.scale, a, a.num_envs, seed=seed)
     sender = Sender(a.send_queue, a.send_timeout_s)
     rejects = wire.RejectCounter()
+
+    def obeys(rule, key: str) -> bool:
+        """Run a content rule (common.wire_rules); a broken one is counted and its message dropped."""
+        try:
+            rule()
+        except wire.WireError as err:
+            rejects.reject(err, key)
+            return False
+        return True
+
     stats = {"env_steps": 0, "episodes": 0, "chunks": 0, "weights_loaded": 0, "paused_s": 0.0}
     try:
         t.declare_alive(keys.publish("alive", ROLE, role=ROLE, name=a.name))
@@ -88,7 +105,7 @@ def run_actor(cfg: RunConfig, t, stop: threading.Event, env_factory=make_env) ->
             if payload is None and not acting.ready:
                 payload = t.fetch(keys.weights, timeout=a.weights_poll_s)
             msg = rejects.decode(payload, expect=wire.Weights, key=keys.weights) if payload is not None else None
-            if msg is not None and acting.load(msg):
+            if msg is not None and acting.adopt(msg, rejects, keys.weights):
                 stats["weights_loaded"] += 1
 
         paused = False
@@ -102,7 +119,9 @@ def run_actor(cfg: RunConfig, t, stop: threading.Event, env_factory=make_env) ->
                     paused = msg.command == "pause" or (paused and msg.command != "resume")
                     if msg.command == "stop":
                         stop.set()
-            if (r := flow_in.get(timeout=0)) is not None and (msg := rejects.decode(r.payload, expect=wire.Control, key=r.key)):
+            if (r := flow_in.get(timeout=0)) is not None and (
+                msg := rejects.decode(r.payload, expect=wire.Control, key=r.key)
+            ):
                 # the pause expires as the learner said (a pause without expiry holds until resume)
                 flow_until = (time.monotonic() + (msg.expires_s or float("inf"))) if msg.command == "pause" else 0.0
 
@@ -124,7 +143,9 @@ def run_actor(cfg: RunConfig, t, stop: threading.Event, env_factory=make_env) ->
                 stats["paused_s"] += time.monotonic() - waited
                 continue
             poll_weights()
-            if (r := tracks_in.get(timeout=0)) is not None and (table := rejects.decode(r.payload, expect=wire.TrackTable, key=r.key)):
+            r = tracks_in.get(timeout=0)
+            table = rejects.decode(r.payload, expect=wire.TrackTable, key=r.key) if r is not None and sampled else None
+            if table is not None and obeys(lambda: check_tracks(table, known_roads), r.key):
                 sampler.update(table.steps)
             actions = acting.act(obs, info)
             next_obs, reward, term, trunc, info = env.step(actions)
@@ -132,13 +153,25 @@ def run_actor(cfg: RunConfig, t, stop: threading.Event, env_factory=make_env) ->
             done = term | trunc
             for i in range(a.num_envs):
                 src, inf = (info["final_obs"][i], info["final_info"]) if done[i] else (_one(next_obs, i), info)
-                chunk = chunks.add(i, actions[i], float(reward[i]), bool(term[i]), bool(trunc[i]), float(inf["alpha"][i]), float(inf["beta"][i]), src, acting.version)
+                chunk = chunks.add(
+                    i,
+                    actions[i],
+                    float(reward[i]),
+                    bool(term[i]),
+                    bool(trunc[i]),
+                    float(inf["alpha"][i]),
+                    float(inf["beta"][i]),
+                    src,
+                    acting.version,
+                )
                 if chunk is not None:
                     sender.send(chunks_out, wire.encode(chunk))
                     stats["chunks"] += 1
                 if done[i]:
                     name, steps = str(info["final_info"]["track"][i]), int(info["final_info"]["steps"][i])
-                    summary = wire.EpisodeSummary(a.name, i, int(chunks.episodes[i]) - 1, name, steps, float(returns[i]), acting.version)
+                    summary = wire.EpisodeSummary(
+                        a.name, i, int(chunks.episodes[i]) - 1, name, steps, float(returns[i]), acting.version
+                    )
                     sender.send(episodes_out, wire.encode(summary))  # the env told the sampler before its draw
                     returns[i] = 0.0
                     stats["episodes"] += 1
@@ -151,7 +184,9 @@ def run_actor(cfg: RunConfig, t, stop: threading.Event, env_factory=make_env) ->
     finally:
         sender.close()
         env.close()
-    stats.update(dropped=sender.dropped, send_errors=sender.errors, rejected=rejects.total, policy_version=acting.version)
+    stats.update(
+        dropped=sender.dropped, send_errors=sender.errors, rejected=rejects.total, policy_version=acting.version
+    )
     log.info("actor %s stopped: %s", a.name, stats)
     return stats
 

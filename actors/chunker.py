@@ -41,7 +41,18 @@ class ChunkBuilder:
         self.steps[i] = 0
         self._open[i] = _Open(obs, alpha, beta, int(self.episodes[i]), 0, version)
 
-    def add(self, i: int, action, reward: float, terminated: bool, truncated: bool, alpha: float, beta: float, next_obs: dict, version: int) -> TransitionChunk | None:
+    def add(
+        self,
+        i: int,
+        action,
+        reward: float,
+        terminated: bool,
+        truncated: bool,
+        alpha: float,
+        beta: float,
+        next_obs: dict,
+        version: int,
+    ) -> TransitionChunk | None:
         """Record one step of env `i` (alpha, beta of `next_obs`); returns a finished chunk or None."""
         o = self._open[i]
         o.frames.append(next_obs["image"][0])
@@ -58,11 +69,21 @@ class ChunkBuilder:
         if not done and len(o.action) < self.chunk_len:
             return None
         chunk = TransitionChunk(
-            actor=self.actor, env=i, episode=o.episode, seq=self.seq, policy_version=o.version, step0=o.step0,
-            frames=np.stack(o.frames), speed=np.asarray(o.speed, np.float32).reshape(-1, 1),
-            last_action=np.asarray(o.last_action, np.float32), action=np.asarray(o.action, np.float32),
-            reward=np.asarray(o.reward, np.float32), terminated=np.asarray(o.terminated, bool),
-            truncated=np.asarray(o.truncated, bool), alpha=np.asarray(o.alpha, np.float32), beta=np.asarray(o.beta, np.float32),
+            actor=self.actor,
+            env=i,
+            episode=o.episode,
+            seq=self.seq,
+            policy_version=o.version,
+            step0=o.step0,
+            frames=np.stack(o.frames),
+            speed=np.asarray(o.speed, np.float32).reshape(-1, 1),
+            last_action=np.asarray(o.last_action, np.float32),
+            action=np.asarray(o.action, np.float32),
+            reward=np.asarray(o.reward, np.float32),
+            terminated=np.asarray(o.terminated, bool),
+            truncated=np.asarray(o.truncated, bool),
+            alpha=np.asarray(o.alpha, np.float32),
+            beta=np.asarray(o.beta, np.float32),
         )
         self.seq += 1
         if done:

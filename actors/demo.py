@@ -34,13 +34,20 @@ def figures(info: dict, steps_per_s: float, done: list[dict]) -> Table:
     t.add_row("track", info["track"], "lap", f"{min(info['progress'], 1.0):6.1%}")
     t.add_row("speed", f"{info['speed'] * 3.6:5.1f} km/h", "steps/s", f"{steps_per_s:,.0f}")
     t.add_row("alpha", f"{info['alpha']:+.3f}", "beta", f"{info['beta']:+.3f} rad")
-    t.add_row("laps done", f"{sum(d['lap'] for d in done)}/{len(done)}", "worst |alpha|", f"{max([d['max_alpha'] for d in done], default=0):.3f}")
+    t.add_row(
+        "laps done",
+        f"{sum(d['lap'] for d in done)}/{len(done)}",
+        "worst |alpha|",
+        f"{max([d['max_alpha'] for d in done], default=0):.3f}",
+    )
     return t
 
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    parser.add_argument("--speedup", type=float, default=10.0, help="times faster than real time (0: as fast as possible)")
+    parser.add_argument(
+        "--speedup", type=float, default=10.0, help="times faster than real time (0: as fast as possible)"
+    )
     parser.add_argument("--split", default="test", choices=["train", "test", "all"], help="which roads to drive")
     args = parser.parse_args()
     controller = KinematicController()
@@ -61,7 +68,9 @@ def main() -> None:
                     if steps % 5 == 0:
                         panel = Panel(camera_text(obs["image"][0]), title="front camera", expand=False)
                         live.update(Group(panel, figures(info, steps / max(elapsed, 1e-9), done)))
-                done.append({"track": info["track"], "lap": bool(info["lap_completed"]), "max_alpha": worst, "steps": steps})
+                done.append(
+                    {"track": info["track"], "lap": bool(info["lap_completed"]), "max_alpha": worst, "steps": steps}
+                )
     summary = Table("track", "lap completed", "steps", "max |alpha|", title="kinematic controller")
     for d in done:
         summary.add_row(d["track"], "yes" if d["lap"] else "NO", str(d["steps"]), f"{d['max_alpha']:.3f}")

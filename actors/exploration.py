@@ -19,9 +19,17 @@ import numpy as np
 class OrnsteinUhlenbeck:
     """OU noise of shape (n_envs, action_dim), numpy, float32."""
 
-    def __init__(self, n_envs: int, action_dim: int = 2, *, theta: float = 1.0,
-                 sigma: float = 0.1, dt: float = 0.01, mu: float = 0.0,
-                 seed: int | None = None):
+    def __init__(
+        self,
+        n_envs: int,
+        action_dim: int = 2,
+        *,
+        theta: float = 1.0,
+        sigma: float = 0.1,
+        dt: float = 0.01,
+        mu: float = 0.0,
+        seed: int | None = None,
+    ):
         self.theta, self.sigma, self.dt, self.mu = theta, sigma, dt, mu
         self.rng = np.random.default_rng(seed)
         self.state = np.full((n_envs, action_dim), mu, dtype=np.float32)

@@ -46,14 +46,26 @@ def random_transitions(n: int, generator: torch.Generator) -> TensorDict:
     def frames():
         return torch.randint(0, 256, (n, 2, 64, 128), generator=generator, dtype=torch.uint8)
 
-    return TensorDict({
-        "image": frames(), "speed": torch.rand(n, 1, generator=generator),
-        "last_action": u(n, 2), "alpha": u(n, 1), "beta": u(n, 1), "action": u(n, 2),
-        "next": {"image": frames(), "speed": torch.rand(n, 1, generator=generator),
-                 "alpha": u(n, 1), "beta": u(n, 1), "reward": u(n, 1),
-                 "terminated": torch.rand(n, 1, generator=generator) < 0.01,
-                 "truncated": torch.zeros(n, 1, dtype=torch.bool)},
-    }, batch_size=[n])
+    return TensorDict(
+        {
+            "image": frames(),
+            "speed": torch.rand(n, 1, generator=generator),
+            "last_action": u(n, 2),
+            "alpha": u(n, 1),
+            "beta": u(n, 1),
+            "action": u(n, 2),
+            "next": {
+                "image": frames(),
+                "speed": torch.rand(n, 1, generator=generator),
+                "alpha": u(n, 1),
+                "beta": u(n, 1),
+                "reward": u(n, 1),
+                "terminated": torch.rand(n, 1, generator=generator) < 0.01,
+                "truncated": torch.zeros(n, 1, dtype=torch.bool),
+            },
+        },
+        batch_size=[n],
+    )
 
 
 class Bench:
@@ -64,8 +76,7 @@ class Bench:
         g = torch.Generator().manual_seed(0)
         for _ in range(fill // 256):
             self.core.add(random_transitions(256, g))
-        self.inserts = [random_transitions(scale.batch_size // SAMPLES_PER_INSERT, g).to(device)
-                        for _ in range(8)]
+        self.inserts = [random_transitions(scale.batch_size // SAMPLES_PER_INSERT, g).to(device) for _ in range(8)]
         n = scale.batch_size
         self.batch = expand(self.core.replay.sample_uniform(n)).to(device)
         nets = self.core.nets
@@ -88,8 +99,12 @@ class Bench:
         obs = (b["image"], b["speed"], b["last_action"])
         for module in nets.modules().values():
             module.zero_grad(set_to_none=True)
-        loss = (nets.gvf(*obs).mean() + nets.behaviour(*obs, b["action"]).mean()
-                + nets.actor(self.phi).mean() + nets.critic(self.phi, b["action"]).mean())
+        loss = (
+            nets.gvf(*obs).mean()
+            + nets.behaviour(*obs, b["action"]).mean()
+            + nets.actor(self.phi).mean()
+            + nets.critic(self.phi, b["action"]).mean()
+        )
         loss.backward()
         if with_forwards:  # the forward passes without gradient the algorithm needs
             with torch.no_grad():
@@ -114,9 +129,12 @@ class Bench:
             network.append(self.rate(lambda: self.bare(with_forwards=True), per_round))
         ratios = [b / f for f, b in zip(full, bare)]
         network_ratios = [n / f for f, n in zip(full, network)]
-        return {"updates_per_s": statistics.median(full), "bare_per_s": statistics.median(bare),
-                "overhead_ratio": statistics.median(ratios),
-                "network_ratio": statistics.median(network_ratios)}
+        return {
+            "updates_per_s": statistics.median(full),
+            "bare_per_s": statistics.median(bare),
+            "overhead_ratio": statistics.median(ratios),
+            "network_ratio": statistics.median(network_ratios),
+        }
 
 
 def main() -> None:
@@ -129,9 +147,12 @@ def main() -> None:
         parser.error("--device cuda: no CUDA device available")
     torch.set_num_threads(args.threads)
     per_round = {"small": 2, "paper": 1} if args.device == "cpu" else {"small": 10, "paper": 10}
-    result: dict[str, object] = {"device": args.device, "threads": args.threads,
-                                 "batch_size": 128,
-                                 "inserts_per_update": 128 // SAMPLES_PER_INSERT}
+    result: dict[str, object] = {
+        "device": args.device,
+        "threads": args.threads,
+        "batch_size": 128,
+        "inserts_per_update": 128 // SAMPLES_PER_INSERT,
+    }
     if args.device == "cuda":
         result["gpu"] = torch.cuda.get_device_name()
     started = time.perf_counter()

@@ -46,10 +46,13 @@ def run(setting: dict, data, obs, truth, updates: int, warmup: int, ratio: float
     rmse = (predictions - truth).square().mean(0).sqrt()
     constant = (truth - truth.mean(0)).square().mean(0).sqrt()
     rel = (rmse / constant).reshape(2, len(GAMMAS))
-    return {"rho_bar": curve, "warmup_mass_share": round(float(rho[:warmup].sum() / rho.sum()), 3),
-            "warmup_share_of_items": round(warmup / len(rho), 3),
-            "rmse_over_constant_alpha": [round(float(x), 3) for x in rel[0]],
-            "rmse_over_constant_beta": [round(float(x), 3) for x in rel[1]]}
+    return {
+        "rho_bar": curve,
+        "warmup_mass_share": round(float(rho[:warmup].sum() / rho.sum()), 3),
+        "warmup_share_of_items": round(warmup / len(rho), 3),
+        "rmse_over_constant_alpha": [round(float(x), 3) for x in rel[0]],
+        "rmse_over_constant_beta": [round(float(x), 3) for x in rel[1]],
+    }
 
 
 def main() -> None:
@@ -65,9 +68,13 @@ def main() -> None:
     out = {"gammas": GAMMAS, "transitions": len(data), "warmup": args.warmup, "updates": args.updates}
     for terminal in ("absorbing",):
         obs, truth = tau_returns(80, GAMMAS, seed=7, sigma=args.sigma, terminal=terminal)
-        for name, setting in (("fixed_at_insert", dict(behaviour_warmup_updates=0, rho_refresh_every=0)),
-                              ("warm_start_and_refresh", {})):
-            out[name] = run({**setting, "gvf_terminal": terminal}, data, obs, truth, args.updates, args.warmup, args.ratio)
+        for name, setting in (
+            ("fixed_at_insert", dict(behaviour_warmup_updates=0, rho_refresh_every=0)),
+            ("warm_start_and_refresh", {}),
+        ):
+            out[name] = run(
+                {**setting, "gvf_terminal": terminal}, data, obs, truth, args.updates, args.warmup, args.ratio
+            )
             print(name, json.dumps(out[name]), flush=True)
     print(json.dumps(out))
 

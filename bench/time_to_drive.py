@@ -50,9 +50,14 @@ def drive_test_roads(path: Path) -> dict | None:
         return None
     results = evaluate(policy)
     mean = summary(results)
-    return {"updates": meta["updates"], "laps": int(sum(r["metrics"]["lap_completed"] for r in results)),
-            "near_out_of_lane": mean["near_out_of_lane"], "offcenteredness": mean["offcenteredness"],
-            "average_speed": mean["average_speed"], "failed": sorted(r["track"] for r in results if not r["metrics"]["lap_completed"])}
+    return {
+        "updates": meta["updates"],
+        "laps": int(sum(r["metrics"]["lap_completed"] for r in results)),
+        "near_out_of_lane": mean["near_out_of_lane"],
+        "offcenteredness": mean["offcenteredness"],
+        "average_speed": mean["average_speed"],
+        "failed": sorted(r["track"] for r in results if not r["metrics"]["lap_completed"]),
+    }
 
 
 def main() -> None:
@@ -60,7 +65,11 @@ def main() -> None:
     parser.add_argument("--budget-min", type=float, default=30.0, help="give up after this many minutes")
     parser.add_argument("--eval-every", type=int, default=500, help="learner updates between evaluations")
     parser.add_argument("--run-dir", default=None, help="keep the run here (default: a temporary folder)")
-    parser.add_argument("--until-budget", action="store_true", help="go on after the first evaluation with every lap, to see if it holds")
+    parser.add_argument(
+        "--until-budget",
+        action="store_true",
+        help="go on after the first evaluation with every lap, to see if it holds",
+    )
     parser.add_argument("--out", type=Path, default=None, help="also write the JSON here; skip the run if it exists")
     parser.add_argument("overrides", nargs="*", help="extra Hydra overrides for gvf-train")
     args = parser.parse_args()
@@ -69,10 +78,24 @@ def main() -> None:
         return
     run_dir = Path(args.run_dir or tempfile.mkdtemp(prefix="time_to_drive_"))
     run_dir.mkdir(parents=True, exist_ok=True)
-    cmd = [str(BIN / "gvf-train"), "agent=gvf_ddpg", "scale=small", "actors.count=2", "progress=false", "run=time_to_drive",
-           f"eval.every_updates={args.eval_every}", f"hydra.run.dir={run_dir}", *args.overrides]
+    cmd = [
+        str(BIN / "gvf-train"),
+        "agent=gvf_ddpg",
+        "scale=small",
+        "actors.count=2",
+        "progress=false",
+        "run=time_to_drive",
+        f"eval.every_updates={args.eval_every}",
+        f"hydra.run.dir={run_dir}",
+        *args.overrides,
+    ]
     start = time.monotonic()
-    proc = subprocess.Popen(cmd, stdout=open(run_dir / "train.out", "wb"), stderr=subprocess.STDOUT, env={**os.environ, "OMP_NUM_THREADS": "1"})
+    proc = subprocess.Popen(
+        cmd,
+        stdout=open(run_dir / "train.out", "wb"),
+        stderr=subprocess.STDOUT,
+        env={**os.environ, "OMP_NUM_THREADS": "1"},
+    )
     best, done_min, steps_at_done, first_all = None, None, None, None
     seen: dict[int, list] = {}  # updates -> [minute first seen, updates, test laps of 12, validation laps of 12]
     try:
@@ -84,10 +107,18 @@ def main() -> None:
                     continue
                 laps = round(e["mean"]["lap_completed"] * len(e["drives"]))
                 val = e.get("validation", {}).get("lap_completed")
-                seen[e["updates"]] = [minute, e["updates"], laps, None if val is None else round(val * len(e["drives"]))]
+                seen[e["updates"]] = [
+                    minute,
+                    e["updates"],
+                    laps,
+                    None if val is None else round(val * len(e["drives"])),
+                ]
                 if best is None or e["mean"]["lap_completed"] > best["mean"]["lap_completed"]:
                     best = e
-                print(f"{minute:5.1f} min  {e['updates']} updates  laps {laps}/{len(e['drives'])}  reward/s {e['mean']['reward_per_s']:.2f}", flush=True)
+                print(
+                    f"{minute:5.1f} min  {e['updates']} updates  laps {laps}/{len(e['drives'])}  reward/s {e['mean']['reward_per_s']:.2f}",
+                    flush=True,
+                )
                 if e["mean"]["lap_completed"] >= 1.0 and done_min is None:
                     done_min, steps_at_done, first_all = minute, read_progress(run_dir).get("inserted"), e
             if done_min is not None and not args.until_budget:
@@ -103,7 +134,10 @@ def main() -> None:
     evaluations = sorted(seen.values(), key=lambda x: x[1])
     after = [laps for _, updates, laps, _ in evaluations if first_all is not None and updates > first_all["updates"]]
     n_laps = len(first_all["drives"]) if first_all else 12
-    last, selected = drive_test_roads(run_dir / "checkpoints"), drive_test_roads(run_dir / "checkpoints" / "best-policy.pt")
+    last, selected = (
+        drive_test_roads(run_dir / "checkpoints"),
+        drive_test_roads(run_dir / "checkpoints" / "best-policy.pt"),
+    )
     result = {
         "minutes_to_all_test_laps": done_min,
         "env_steps": steps_at_done if done_min is not None else progress.get("inserted"),  # at the laps, else in all

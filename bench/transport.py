@@ -66,10 +66,19 @@ sys.path[:] = [p for p in sys.path if Path(p or ".").resolve() != _HERE]
 sys.path.insert(0, str(_HERE.parent))
 
 
+from bench.transport_procs import (  # noqa: E402
+    ACTOR,
+    Producer,
+    ack_key,
+    broadcast_latency,
+    credit_key,
+    start_router,
+    stop_process,
+    wait_all,
+    weights_actor_main,
+)
 from common import wire  # noqa: E402
 from common.keys import Keys  # noqa: E402
-from bench.transport_procs import (ACTOR, Producer, ack_key, broadcast_latency, credit_key,  # noqa: E402
-                                   start_router, stop_process, wait_all, weights_actor_main)
 
 TARGET_RATIO, GOAL_TRANSITIONS_PER_S = 0.5, 50_000.0
 RAW_SUFFIX, WEIGHTS_SUFFIX = "-raw", "-weights"
@@ -78,6 +87,7 @@ FILL_TIMEOUT_S = 60.0
 
 
 # --- the learner side -----------------------------------------------------------------------
+
 
 def raw_phase(session, run: str, producer: Producer, warmup: float, seconds: float, chunk_len: int) -> dict:
     """Raw Zenoh: the same payloads into a subscriber whose callback only counts."""
@@ -106,8 +116,13 @@ def raw_phase(session, run: str, producer: Producer, warmup: float, seconds: flo
     finally:
         sub.undeclare()
     chunks_per_s = (c1 - c0) / (t1 - t0)
-    return {"transitions_per_s": chunks_per_s * chunk_len, "chunks_per_s": chunks_per_s,
-            "sent": sent, "received": received, "lost": sent - received}
+    return {
+        "transitions_per_s": chunks_per_s * chunk_len,
+        "chunks_per_s": chunks_per_s,
+        "sent": sent,
+        "received": received,
+        "lost": sent - received,
+    }
 
 
 def settle(counter, quiet: float = 0.3, timeout: float = 10.0) -> None:
@@ -123,7 +138,7 @@ def settle(counter, quiet: float = 0.3, timeout: float = 10.0) -> None:
 def stage_times(service):
     """Seconds the learner's ingest spends in each stage, by timing the calls it makes:
     decode (msgpack + strict checks), convert (`chunks_to_transitions`), insert (`core.add`)."""
-    import learner.service as learner_service
+    import learner.ingestor as learner_ingestor
 
     totals = dict.fromkeys(("decode", "convert", "insert"), 0.0)
 
@@ -134,30 +149,39 @@ def stage_times(service):
                 return fn(*a, **kw)
             finally:
                 totals[stage] += time.perf_counter() - t
+
         return call
 
-    rejects, core = service.rejects, service.core
-    saved = (rejects.decode, learner_service.chunks_to_transitions, core.add)
+    rejects, core = service.intake.rejects, service.core
+    saved = (rejects.decode, learner_ingestor.chunks_to_transitions, core.add)
     rejects.decode = timed("decode", saved[0])
-    learner_service.chunks_to_transitions = timed("convert", saved[1])
+    learner_ingestor.chunks_to_transitions = timed("convert", saved[1])
     core.add = timed("insert", saved[2])
     try:
         yield totals
     finally:
         del rejects.decode  # back to the class's method
-        learner_service.chunks_to_transitions, core.add = saved[1], saved[2]
+        learner_ingestor.chunks_to_transitions, core.add = saved[1], saved[2]
 
 
-def ingest_phase(service, producer: Producer, warmup: float, seconds: float, credit=None,
-                 window: int = 0, profiler=None) -> dict:
+def ingest_phase(
+    service, producer: Producer, warmup: float, seconds: float, credit=None, window: int = 0, profiler=None
+) -> dict:
     """The learner's real ingest loop for warmup + seconds, then drain what is left.
 
     With `credit` (a publisher) and `window` > 0 the producer is paced: after every ingest the
     learner publishes the next seq it expects, and the producer stays within `window` chunks.
     """
-    inbox, counters, seq = service.chunks_in, service.counters, service.seq
-    state = lambda: {"received": inbox.received, "dropped": inbox.dropped,  # noqa: E731
-                     "rejected": service.rejects.total, "chunks": counters["chunks"]}
+    inbox, counters, seq = service.chunks_in, service.intake.counters, service.intake.seq
+
+    def state() -> dict:
+        return {
+            "received": inbox.received,
+            "dropped": inbox.dropped,
+            "rejected": service.intake.rejects.total,
+            "chunks": counters["chunks"],
+        }
+
     before = state()
 
     def ingest() -> int:
@@ -176,7 +200,8 @@ def ingest_phase(service, producer: Producer, warmup: float, seconds: float, cre
     start, replay = time.perf_counter(), service.core.replay
     # steady state: the replay's storage has been written once (first writes fault its pages in)
     while time.perf_counter() - start < warmup or (
-            len(replay) < replay.capacity and time.perf_counter() - start < FILL_TIMEOUT_S):
+        len(replay) < replay.capacity and time.perf_counter() - start < FILL_TIMEOUT_S
+    ):
         ingest()
     if profiler is not None:
         profiler.enable()
@@ -194,14 +219,20 @@ def ingest_phase(service, producer: Producer, warmup: float, seconds: float, cre
         ingest()
     rate = (i1 - i0) / (t1 - t0)
     d = {k: v - before[k] for k, v in state().items()}
-    return {"transitions_per_s": rate, "chunks_per_s": rate / service.cfg.actor.chunk_len,
-            "sent": sent, "received": d["received"], "inserted_chunks": d["chunks"],
-            "inbox_dropped": d["dropped"], "network_lost": sent - d["received"],
-            "rejected": d["rejected"],
-            # where the learner's time went, per chunk inserted in the window (the rest: waiting,
-            # draining the inbox, sequence bookkeeping, and the zenoh thread's share of the GIL)
-            **{f"{k}_ms_per_chunk": v * 1e3 / chunks for k, v in stages.items()},
-            "window_ms_per_chunk": (t1 - t0) * 1e3 / chunks}
+    return {
+        "transitions_per_s": rate,
+        "chunks_per_s": rate / service.cfg.actor.chunk_len,
+        "sent": sent,
+        "received": d["received"],
+        "inserted_chunks": d["chunks"],
+        "inbox_dropped": d["dropped"],
+        "network_lost": sent - d["received"],
+        "rejected": d["rejected"],
+        # where the learner's time went, per chunk inserted in the window (the rest: waiting,
+        # draining the inbox, sequence bookkeeping, and the zenoh thread's share of the GIL)
+        **{f"{k}_ms_per_chunk": v * 1e3 / chunks for k, v in stages.items()},
+        "window_ms_per_chunk": (t1 - t0) * 1e3 / chunks,
+    }
 
 
 def use_precomputed_rho(core) -> None:
@@ -218,6 +249,7 @@ def use_precomputed_rho(core) -> None:
 
 # --- wiring ---------------------------------------------------------------------------------
 
+
 def compose(overrides: list[str]):
     from common.cli import compose_run
 
@@ -233,8 +265,12 @@ def main(argv: list[str] | None = None) -> dict:
     parser.add_argument("--seconds", type=float, default=2.0, help="measured seconds per phase")
     parser.add_argument("--warmup", type=float, default=0.5, help="unmeasured seconds before each phase")
     parser.add_argument("--repeats", type=int, default=3, help="rounds of every phase; medians are reported")
-    parser.add_argument("--window", type=int, default=256,
-                        help="chunks a paced producer may be ahead of the learner (< learner.inbox_chunks)")
+    parser.add_argument(
+        "--window",
+        type=int,
+        default=256,
+        help="chunks a paced producer may be ahead of the learner (< learner.inbox_chunks)",
+    )
     parser.add_argument("--broadcasts", type=int, default=20, help="timed weight broadcasts per actor count")
     parser.add_argument("--actors", type=int, nargs="+", default=[1, 4], help="actor counts of the broadcast")
     parser.add_argument("--no-rho", action="store_true", help="skip the ingest+rho phases")
@@ -273,8 +309,12 @@ def main(argv: list[str] | None = None) -> dict:
         for i in range(max(args.actors)):
             joins.append(ctx.Event())
             readies.append(ctx.Event())
-            p = ctx.Process(target=weights_actor_main, name=f"actor-{i}", daemon=True, args=(
-                tcfg, weights_run, f"a{i}", cfg.agent, cfg.scale, cfg.actor, joins[i], readies[i], actors_stop))
+            p = ctx.Process(
+                target=weights_actor_main,
+                name=f"actor-{i}",
+                daemon=True,
+                args=(tcfg, weights_run, f"a{i}", cfg.agent, cfg.scale, cfg.actor, joins[i], readies[i], actors_stop),
+            )
             p.start()
             procs.append(p)
 
@@ -318,28 +358,42 @@ def main(argv: list[str] | None = None) -> dict:
         for n in sorted(set(args.actors)):
             for join in joins[:n]:
                 join.set()
-            latency[n] = broadcast_latency(weights_out, acks, lambda v: wire.encode(wire.Weights(v, tensors)),
-                                           [f"a{i}" for i in range(n)], args.broadcasts, version)
+            latency[n] = broadcast_latency(
+                weights_out,
+                acks,
+                lambda v: wire.encode(wire.Weights(v, tensors)),
+                [f"a{i}" for i in range(n)],
+                args.broadcasts,
+                version,
+            )
             version = latency[n]["last_version"]
     finally:
         actors_stop.set()
         if producer is not None:
             producer.close()
         if service is not None:
-            service.writer.close()
+            service.run_log.close()
         if transport is not None:
             transport.close()
         router_stop.set()
         for p in reversed(procs):  # the router last: the others close their sessions through it
             stop_process(p)
         tmp.cleanup()
-    return summarize(rounds, latency, args, cfg, chunk_bytes, weights_bytes, encode_ms,
-                     time.perf_counter() - started)
+    return summarize(rounds, latency, args, cfg, chunk_bytes, weights_bytes, encode_ms, time.perf_counter() - started)
 
 
-def summarize(rounds: list[dict], latency: dict[int, dict], args, cfg, chunk_bytes: int,
-              weights_bytes: int, encode_ms: float, wall_s: float) -> dict:
+def summarize(
+    rounds: list[dict],
+    latency: dict[int, dict],
+    args,
+    cfg,
+    chunk_bytes: int,
+    weights_bytes: int,
+    encode_ms: float,
+    wall_s: float,
+) -> dict:
     """The JSON result: medians over rounds, ratios, loss counts, broadcast latency, parameters."""
+
     def med(phase: str) -> float | None:
         values = [r[phase]["transitions_per_s"] for r in rounds if phase in r]
         return round(median(values), 1) if values else None
@@ -379,15 +433,29 @@ def summarize(rounds: list[dict], latency: dict[int, dict], args, cfg, chunk_byt
         result[f"weights_rtt_ms_{n}"] = round(lat["rtt_median_ms"], 3)
         result[f"weights_broadcasts_{n}"] = lat["broadcasts"]
         result[f"weights_missed_{n}"] = lat["missed"]
-    result["rounds"] = [{phase: {k: round(v, 3) if isinstance(v, float) else v for k, v in r.items()}
-                         for phase, r in rnd.items()} for rnd in rounds]
+    result["rounds"] = [
+        {phase: {k: round(v, 3) if isinstance(v, float) else v for k, v in r.items()} for phase, r in rnd.items()}
+        for rnd in rounds
+    ]
     result["params"] = {
-        "seconds": args.seconds, "warmup": args.warmup, "repeats": args.repeats, "window": args.window,
-        "broadcasts": args.broadcasts, "actors": args.actors, "chunk_len": cfg.actor.chunk_len,
-        "frame_shape": [64, 128], "chunk_bytes": chunk_bytes, "ingest_batch": cfg.learner.ingest_batch,
-        "inbox_chunks": cfg.learner.inbox_chunks, "buffer_size": cfg.scale.buffer_size,
-        "scale": cfg.scale.name, "agent": cfg.agent.name, "torch_threads": cfg.learner.torch_threads,
-        "cpus": os.cpu_count(), "overrides": args.overrides, "wall_s": round(wall_s, 1),
+        "seconds": args.seconds,
+        "warmup": args.warmup,
+        "repeats": args.repeats,
+        "window": args.window,
+        "broadcasts": args.broadcasts,
+        "actors": args.actors,
+        "chunk_len": cfg.actor.chunk_len,
+        "frame_shape": [64, 128],
+        "chunk_bytes": chunk_bytes,
+        "ingest_batch": cfg.learner.ingest_batch,
+        "inbox_chunks": cfg.learner.inbox_chunks,
+        "buffer_size": cfg.scale.buffer_size,
+        "scale": cfg.scale.name,
+        "agent": cfg.agent.name,
+        "torch_threads": cfg.learner.torch_threads,
+        "cpus": os.cpu_count(),
+        "overrides": args.overrides,
+        "wall_s": round(wall_s, 1),
     }
     return result
 

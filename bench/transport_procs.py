@@ -26,6 +26,7 @@ ACTOR = "bench-0"
 
 # --- the synthetic actor ---------------------------------------------------------------------
 
+
 def episode_payloads(chunk_len: int, frame_shape: tuple[int, int], seed: int) -> list[tuple[bytes, int, int]]:
     """One synthetic episode as encoded chunks, each with the offsets of its seq and episode.
 
@@ -46,10 +47,22 @@ def episode_payloads(chunk_len: int, frame_shape: tuple[int, int], seed: int) ->
         truncated = np.zeros(T, bool)
         truncated[-1] = k == n_chunks - 1
         chunk = wire.TransitionChunk(
-            actor=ACTOR, env=0, episode=EPISODE_MARK, seq=SEQ_MARK, policy_version=0, step0=s,
-            frames=frames[s:s + T + 2], speed=speed[s:s + T + 1], last_action=action[s:s + T + 1],
-            action=action[s + 1:s + T + 1], reward=reward[s:s + T], terminated=np.zeros(T, bool),
-            truncated=truncated, alpha=alpha[s:s + T + 1], beta=beta[s:s + T + 1])
+            actor=ACTOR,
+            env=0,
+            episode=EPISODE_MARK,
+            seq=SEQ_MARK,
+            policy_version=0,
+            step0=s,
+            frames=frames[s : s + T + 2],
+            speed=speed[s : s + T + 1],
+            last_action=action[s : s + T + 1],
+            action=action[s + 1 : s + T + 1],
+            reward=reward[s : s + T],
+            terminated=np.zeros(T, bool),
+            truncated=truncated,
+            alpha=alpha[s : s + T + 1],
+            beta=beta[s : s + T + 1],
+        )
         payload = wire.encode(chunk)
         offsets = []
         for name, mark in ((b"seq", SEQ_MARK), (b"episode", EPISODE_MARK)):
@@ -74,8 +87,9 @@ def credit_key(run: str) -> str:
     return f"{Keys(run).root}/bench/credit"
 
 
-def producer_main(tcfg: TransportConfig, runs: list[str], chunk_len: int, frame_shape: tuple[int, int],
-                  commands, results, halt, ready) -> None:
+def producer_main(
+    tcfg: TransportConfig, runs: list[str], chunk_len: int, frame_shape: tuple[int, int], commands, results, halt, ready
+) -> None:
     """On ("send", run, window): publish the synthetic episode on `run` until `halt`.
 
     window 0: flat out (as fast as BLOCK puts go); window W: at most W chunks ahead of the
@@ -114,12 +128,17 @@ def producer_main(tcfg: TransportConfig, runs: list[str], chunk_len: int, frame_
 class Producer:
     """The producer process and its command channel."""
 
-    def __init__(self, ctx, tcfg: TransportConfig, runs: list[str], chunk_len: int,
-                 frame_shape: tuple[int, int]) -> None:
+    def __init__(
+        self, ctx, tcfg: TransportConfig, runs: list[str], chunk_len: int, frame_shape: tuple[int, int]
+    ) -> None:
         self.commands, self.results = ctx.Queue(), ctx.Queue()
         self.halt, self.ready = ctx.Event(), ctx.Event()
-        self.process = ctx.Process(target=producer_main, name="producer", daemon=True, args=(
-            tcfg, runs, chunk_len, frame_shape, self.commands, self.results, self.halt, self.ready))
+        self.process = ctx.Process(
+            target=producer_main,
+            name="producer",
+            daemon=True,
+            args=(tcfg, runs, chunk_len, frame_shape, self.commands, self.results, self.halt, self.ready),
+        )
         self.process.start()
 
     def start(self, run: str, window: int = 0) -> None:
@@ -138,12 +157,12 @@ class Producer:
 
 # --- the actors of the weight broadcast -----------------------------------------------------
 
+
 def ack_key(run: str, actor: str = "*") -> str:
     return f"{Keys(run).root}/bench/ack/{actor}"
 
 
-def weights_actor_main(tcfg: TransportConfig, run: str, name: str, agent, scale, actor_cfg,
-                       join, ready, stop) -> None:
+def weights_actor_main(tcfg: TransportConfig, run: str, name: str, agent, scale, actor_cfg, join, ready, stop) -> None:
     """Build the acting policy, subscribe to the weights once `join` is set, ack each load."""
     import torch
 
@@ -170,8 +189,17 @@ def weights_actor_main(tcfg: TransportConfig, run: str, name: str, agent, scale,
                 continue
             acting.load(msg)
             loaded = time.time()
-            acks.put(json.dumps({"actor": name, "version": msg.version, "received": received,
-                                 "loaded": loaded, "policy_version": acting.version}).encode())
+            acks.put(
+                json.dumps(
+                    {
+                        "actor": name,
+                        "version": msg.version,
+                        "received": received,
+                        "loaded": loaded,
+                        "policy_version": acting.version,
+                    }
+                ).encode()
+            )
 
 
 def broadcast_latency(pub, acks, payload_of, actors: list[str], broadcasts: int, first_version: int) -> dict:
@@ -193,9 +221,11 @@ def broadcast_latency(pub, acks, payload_of, actors: list[str], broadcasts: int,
         rtt = time.perf_counter() - t0
         if len(got) < len(actors):
             return None
-        return {"loaded_ms": (max(a["loaded"] for a in got.values()) - start) * 1e3,
-                "received_ms": (max(a["received"] for a in got.values()) - start) * 1e3,
-                "rtt_ms": rtt * 1e3}
+        return {
+            "loaded_ms": (max(a["loaded"] for a in got.values()) - start) * 1e3,
+            "received_ms": (max(a["received"] for a in got.values()) - start) * 1e3,
+            "rtt_ms": rtt * 1e3,
+        }
 
     # the first broadcasts wait for new subscriptions to reach the router: not timed
     deadline = time.monotonic() + 30.0
@@ -214,14 +244,20 @@ def broadcast_latency(pub, acks, payload_of, actors: list[str], broadcasts: int,
     def q(key: str, p: float) -> float:
         return float(np.percentile([s[key] for s in samples], p)) if samples else float("nan")
 
-    return {"median_ms": q("loaded_ms", 50), "p90_ms": q("loaded_ms", 90),
-            "received_median_ms": q("received_ms", 50), "rtt_median_ms": q("rtt_ms", 50),
-            "rtt_p90_ms": q("rtt_ms", 90), "broadcasts": len(samples), "missed": missed,
-            "last_version": version}
-
+    return {
+        "median_ms": q("loaded_ms", 50),
+        "p90_ms": q("loaded_ms", 90),
+        "received_median_ms": q("received_ms", 50),
+        "rtt_median_ms": q("rtt_ms", 50),
+        "rtt_p90_ms": q("rtt_ms", 90),
+        "broadcasts": len(samples),
+        "missed": missed,
+        "last_version": version,
+    }
 
 
 # --- processes ------------------------------------------------------------------------------
+
 
 def free_port() -> int:
     with socket.socket() as s:

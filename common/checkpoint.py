@@ -20,6 +20,7 @@ folder, is fsynced, then renamed: a crash mid-write never leaves a torn file.
 from __future__ import annotations
 
 import dataclasses
+import math
 import os
 import re
 from pathlib import Path
@@ -33,8 +34,12 @@ BEST = "best-policy.pt"
 
 def policy_entries(policy: dict, agent: Any, scale: Any, updates: int) -> dict[str, Any]:
     """The part of the layout every reader relies on (see the module docstring)."""
-    return {"policy": {k: v.detach().cpu() for k, v in policy.items()}, "agent": dataclasses.asdict(agent),
-            "scale": dataclasses.asdict(scale), "core": {"updates": int(updates)}}
+    return {
+        "policy": {k: v.detach().cpu() for k, v in policy.items()},
+        "agent": dataclasses.asdict(agent),
+        "scale": dataclasses.asdict(scale),
+        "core": {"updates": int(updates)},
+    }
 
 
 def write(path: str | Path, state: dict[str, Any]) -> Path:
@@ -57,6 +62,39 @@ def save(directory: str | Path, updates: int, state: dict[str, Any], keep: int =
     for old in sorted(p for p in directory.iterdir() if PATTERN.match(p.name))[:-keep]:
         old.unlink()
     return final
+
+
+def all_finite(state: Any) -> bool:
+    """Every tensor and float anywhere in `state` (dicts, lists, tensors) is finite."""
+    if isinstance(state, torch.Tensor):
+        return not state.is_floating_point() or bool(torch.isfinite(state).all())
+    if isinstance(state, float):
+        return math.isfinite(state)
+    if isinstance(state, dict):
+        return all(all_finite(v) for v in state.values())
+    if isinstance(state, (list, tuple)):
+        return all(all_finite(v) for v in state)
+    return True
+
+
+def newest_good(directory: str | Path, log: Any = None) -> tuple[Path, dict] | None:
+    """The newest ckpt-*.pt in `directory` that loads and holds only finite values, with its state;
+    each bad one on the way is reported to `log` and skipped (None if there is no good one)."""
+    directory = Path(directory)
+    if not directory.is_dir():
+        return None
+    for path in sorted((p for p in directory.iterdir() if PATTERN.match(p.name)), reverse=True):
+        try:
+            state = load(path)
+        except Exception as exc:  # a torn or foreign file: the next older one may be good
+            if log is not None:
+                log.error("checkpoint %s cannot be read (%s); trying an older one", path, exc)
+            continue
+        if all_finite(state):
+            return path, state
+        if log is not None:
+            log.error("checkpoint %s holds non-finite values; refused, trying an older one", path)
+    return None
 
 
 def latest(directory: str | Path) -> Path | None:

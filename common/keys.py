@@ -44,15 +44,35 @@ class Route:
 WIRING: tuple[Route, ...] = (
     Route("transitions", "transitions/<actor>", ("actor",), ("learner",), "TransitionChunk", "BLOCK"),
     Route("episodes", "episodes/<actor>", ("actor",), ("learner",), "EpisodeSummary", "BLOCK"),
-    Route("weights", "weights", ("learner",), ("actor", "evaluator"), "Weights", "BLOCK",
-          "also a queryable answered by the learner: actors fetch the latest at start-up"),
+    Route(
+        "weights",
+        "weights",
+        ("learner",),
+        ("actor", "evaluator"),
+        "Weights",
+        "BLOCK",
+        "also a queryable answered by the learner: actors fetch the latest at start-up",
+    ),
     Route("tracks", "tracks", ("learner",), ("actor",), "TrackTable", "BLOCK"),
-    Route("control", "control", ("gvfctl",), ("learner", "actor"), "Control", "BLOCK",
-          "stop / pause / resume from the operator"),
-    Route("flow", "flow", ("learner",), ("actor",), "Control", "BLOCK",
-          "pause / resume: the learner's rate limit"),
-    Route("alive", "alive/<role>/<name>", ("learner", "actor"), ("learner", "gvfctl"), "-", "-",
-          "liveliness tokens; the learner watches alive/actor/*, gvfctl alive/**"),
+    Route(
+        "control",
+        "control",
+        ("gvfctl",),
+        ("learner", "actor"),
+        "Control",
+        "BLOCK",
+        "stop / pause / resume from the operator",
+    ),
+    Route("flow", "flow", ("learner",), ("actor",), "Control", "BLOCK", "pause / resume: the learner's rate limit"),
+    Route(
+        "alive",
+        "alive/<role>/<name>",
+        ("learner", "actor"),
+        ("learner", "gvfctl"),
+        "-",
+        "-",
+        "liveliness tokens; the learner watches alive/actor/*, gvfctl alive/**",
+    ),
 )
 ROUTES = {r.name: r for r in WIRING}
 
@@ -182,8 +202,10 @@ def main(argv: list[str] | None = None) -> None:
     argv = sys.argv[1:] if argv is None else argv
     root = Keys(argv[0] if argv else "default").root
     for r in WIRING:
-        print(f"{root + '/' + r.key:<38} {', '.join(r.publishers):<16} -> {', '.join(r.subscribers):<18} "
-              f"{r.message:<16} {r.congestion:<6} {r.note}")
+        print(
+            f"{root + '/' + r.key:<38} {', '.join(r.publishers):<16} -> {', '.join(r.subscribers):<18} "
+            f"{r.message:<16} {r.congestion:<6} {r.note}"
+        )
 
 
 if __name__ == "__main__":

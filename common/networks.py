@@ -54,8 +54,7 @@ class PilotNetTrunk(nn.Module):
         layers: list[nn.Module] = []
         in_channels = image_shape[0]
         for out_channels, (kernel, stride) in zip(channels, PILOTNET_LAYERS, strict=True):
-            layers += [nn.Conv2d(in_channels, out_channels, kernel, stride),
-                       nn.ReLU(inplace=True)]
+            layers += [nn.Conv2d(in_channels, out_channels, kernel, stride), nn.ReLU(inplace=True)]
             in_channels = out_channels
         # channels_last: oneDNN's (and cuDNN's) preferred layout, ~1.5x faster here on CPU;
         # Flatten still reads (C, H, W) in logical order, so features do not change
@@ -102,8 +101,7 @@ def _init_last_layer(branch: nn.Sequential) -> None:
 class BranchedActor(nn.Module):
     """pi(x): one MLP branch per action dimension, linear output squashed to [-1, 1]."""
 
-    def __init__(self, in_dim: int, hidden: Sequence[int], n_actions: int = ACTION_DIM,
-                 squash: str = "clip"):
+    def __init__(self, in_dim: int, hidden: Sequence[int], n_actions: int = ACTION_DIM, squash: str = "clip"):
         super().__init__()
         if squash not in SQUASHES:
             raise ValueError(f"squash must be one of {SQUASHES}, got {squash!r}")
@@ -120,11 +118,9 @@ class BranchedActor(nn.Module):
 class BranchedCritic(nn.Module):
     """Q(x, a): sum of `n_branches` MLP branches on [x, a]; linear output (B, 1)."""
 
-    def __init__(self, in_dim: int, hidden: Sequence[int], n_actions: int = ACTION_DIM,
-                 n_branches: int = 2):
+    def __init__(self, in_dim: int, hidden: Sequence[int], n_actions: int = ACTION_DIM, n_branches: int = 2):
         super().__init__()
-        self.branches = nn.ModuleList(
-            mlp(in_dim + n_actions, hidden, 1) for _ in range(n_branches))
+        self.branches = nn.ModuleList(mlp(in_dim + n_actions, hidden, 1) for _ in range(n_branches))
 
     def forward(self, x: Tensor, action: Tensor) -> Tensor:
         xa = torch.cat([x, action], -1)
@@ -137,12 +133,10 @@ class ImageEncoder(nn.Module):
     def __init__(self, channels: Sequence[int], lowdim_width: int = 0):
         super().__init__()
         self.trunk = PilotNetTrunk(channels)
-        self.lowdim = (nn.Sequential(nn.Linear(2, lowdim_width), nn.ReLU())
-                       if lowdim_width else None)
+        self.lowdim = nn.Sequential(nn.Linear(2, lowdim_width), nn.ReLU()) if lowdim_width else None
         self.out_dim = self.trunk.out_dim + LOW_DIM + lowdim_width
 
-    def forward(self, image: Tensor, speed: Tensor, last_action: Tensor,
-                lowdim: Tensor | None = None) -> Tensor:
+    def forward(self, image: Tensor, speed: Tensor, last_action: Tensor, lowdim: Tensor | None = None) -> Tensor:
         parts = [self.trunk(image), speed, last_action]
         if self.lowdim is not None:
             parts.append(self.lowdim(lowdim))
@@ -157,8 +151,7 @@ class ImageActor(nn.Module):
         self.encoder = encoder
         self.head = BranchedActor(encoder.out_dim, hidden, squash=squash)
 
-    def forward(self, image: Tensor, speed: Tensor, last_action: Tensor,
-                lowdim: Tensor | None = None) -> Tensor:
+    def forward(self, image: Tensor, speed: Tensor, last_action: Tensor, lowdim: Tensor | None = None) -> Tensor:
         return self.head(self.encoder(image, speed, last_action, lowdim))
 
 
@@ -170,8 +163,9 @@ class ImageCritic(nn.Module):
         self.encoder = encoder
         self.head = BranchedCritic(encoder.out_dim, hidden, n_branches=1)
 
-    def forward(self, image: Tensor, speed: Tensor, last_action: Tensor, action: Tensor,
-                lowdim: Tensor | None = None) -> Tensor:
+    def forward(
+        self, image: Tensor, speed: Tensor, last_action: Tensor, action: Tensor, lowdim: Tensor | None = None
+    ) -> Tensor:
         return self.head(self.encoder(image, speed, last_action, lowdim), action)
 
 
@@ -220,8 +214,7 @@ class Networks:
     behaviour: BehaviourNetwork | None = None
 
     def modules(self) -> dict[str, nn.Module]:
-        named = {"gvf": self.gvf, "behaviour": self.behaviour,
-                 "actor": self.actor, "critic": self.critic}
+        named = {"gvf": self.gvf, "behaviour": self.behaviour, "actor": self.actor, "critic": self.critic}
         return {name: module for name, module in named.items() if module is not None}
 
 
@@ -231,8 +224,7 @@ def n_predictions(agent: AgentConfig) -> int:
 
 def _check(agent: AgentConfig) -> None:
     if agent.representation not in REPRESENTATIONS:
-        raise ValueError(f"representation must be one of {REPRESENTATIONS}, "
-                         f"got {agent.representation!r}")
+        raise ValueError(f"representation must be one of {REPRESENTATIONS}, got {agent.representation!r}")
 
 
 def make_policy(agent: AgentConfig, scale: ScaleConfig) -> Policy:
@@ -240,12 +232,12 @@ def make_policy(agent: AgentConfig, scale: ScaleConfig) -> Policy:
     _check(agent)
     if agent.representation == "predictive":
         gvf = GVFNetwork(scale.conv_channels, scale.gvf_hidden, n_predictions(agent))
-        actor = BranchedActor(gvf.n_predictions + LOW_DIM, scale.policy_hidden,
-                              squash=actor_squash(agent, scale))
+        actor = BranchedActor(gvf.n_predictions + LOW_DIM, scale.policy_hidden, squash=actor_squash(agent, scale))
         return Policy("predictive", actor, gvf)
     lowdim = scale.lowdim_width if agent.representation == "lowdim" else 0
-    actor = ImageActor(ImageEncoder(scale.conv_channels, lowdim), scale.image_policy_hidden,
-                       squash=actor_squash(agent, scale))
+    actor = ImageActor(
+        ImageEncoder(scale.conv_channels, lowdim), scale.image_policy_hidden, squash=actor_squash(agent, scale)
+    )
     return Policy(agent.representation, actor)
 
 
@@ -259,3 +251,19 @@ def make_networks(agent: AgentConfig, scale: ScaleConfig) -> Networks:
     lowdim = scale.lowdim_width if agent.representation == "lowdim" else 0
     critic = ImageCritic(ImageEncoder(scale.conv_channels, lowdim), scale.image_policy_hidden)
     return Networks(agent.representation, policy.actor, critic, policy)
+
+
+def main(argv: list[str] | None = None) -> None:
+    """Print the tensors of a weights message for a composed config: `python -m common.networks
+    agent=gvf_ddpg scale=small` (name, shape, dtype per line), what an outside actor must build."""
+    import sys
+
+    from common.cli import compose_run
+
+    cfg = compose_run(sys.argv[1:] if argv is None else argv)
+    for name, tensor in make_policy(cfg.agent, cfg.scale).state_dict().items():
+        print(f"{name}\t{tuple(tensor.shape)}\t<f4")
+
+
+if __name__ == "__main__":
+    main()

@@ -113,8 +113,10 @@ class Progress:
         """The end-of-run summary (printed when the view is on) and returned."""
         result = result or self.last
         records = read_evaluations(self.run_dir / "eval.jsonl")
-        lines = [f"run finished in {self.run_dir}: {result.get('updates', 0):,} updates, "
-                 f"{result.get('inserted', 0):,} transitions, {result.get('episodes', 0):,} episodes"]
+        lines = [
+            f"run finished in {self.run_dir}: {result.get('updates', 0):,} updates, "
+            f"{result.get('inserted', 0):,} transitions, {result.get('episodes', 0):,} episodes"
+        ]
         if records:
             lines.append(f"  last evaluation: {describe(records[-1])}")
             lines.append(f"  best evaluation: {describe(best(records))}")

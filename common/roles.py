@@ -42,12 +42,15 @@ class RoleSpec:
     """Whether the role is handed a transport (the router opens its own Zenoh router session)."""
 
 
-ROLES: dict[str, RoleSpec] = {spec.name: spec for spec in (
-    RoleSpec("router", "common.transport.zenoh_backend:router_role", transport=False),
-    RoleSpec("learner", "learner.service:learner_role", ends_run=True),
-    RoleSpec("actor", "actors.actor:actor_role"),
-    RoleSpec("evaluator", "actors.evaluation.periodic:evaluator_role"),
-)}
+ROLES: dict[str, RoleSpec] = {
+    spec.name: spec
+    for spec in (
+        RoleSpec("router", "common.transport.zenoh_backend:router_role", transport=False),
+        RoleSpec("learner", "learner.service:learner_role", ends_run=True),
+        RoleSpec("actor", "actors.actor:actor_role"),
+        RoleSpec("evaluator", "actors.evaluation.periodic:evaluator_role"),
+    )
+}
 
 
 @dataclass
@@ -79,8 +82,10 @@ def spec_of(name: str) -> RoleSpec:
 def check_standalone(cfg: RunConfig, role: str) -> None:
     """Refuse (naming the field) a role started on its own with a transport that cannot reach anyone."""
     if cfg.transport.backend == "inproc":
-        raise ValueError(f"transport.backend=inproc puts every role in one process: gvf-{role} alone would talk "
-                         "to nobody; run `gvf-train transport=inproc`, or give this role transport=local")
+        raise ValueError(
+            f"transport.backend=inproc puts every role in one process: gvf-{role} alone would talk "
+            "to nobody; run `gvf-train transport=inproc`, or give this role transport=local"
+        )
 
 
 def run_role(name: str, cfg: RunConfig, run_dir: str | Path, stop: threading.Event, bus: Any = None) -> dict | None:
@@ -135,8 +140,11 @@ def _child(role: str, cfg: RunConfig, run_dir: str, log_name: str) -> None:
     from common.cli import stop_on_signals
 
     Path(run_dir, "logs").mkdir(parents=True, exist_ok=True)
-    logging.basicConfig(filename=str(Path(run_dir, "logs", f"{log_name}.log")), level=logging.INFO,
-                        format="%(asctime)s %(name)s %(levelname)s %(message)s")
+    logging.basicConfig(
+        filename=str(Path(run_dir, "logs", f"{log_name}.log")),
+        level=logging.INFO,
+        format="%(asctime)s %(name)s %(levelname)s %(message)s",
+    )
     run_role(role, cfg, run_dir, stop_on_signals())
 
 

@@ -26,8 +26,19 @@ from common import wire_checks as chk
 from common.wire_checks import KINDS, Limits, WireError
 
 __all__ = [
-    "SCHEMA_VERSION", "KINDS", "Limits", "WireError", "TransitionChunk", "EpisodeSummary",
-    "Weights", "TrackTable", "Control", "Message", "encode", "decode", "frames_from_images",
+    "SCHEMA_VERSION",
+    "KINDS",
+    "Limits",
+    "WireError",
+    "TransitionChunk",
+    "EpisodeSummary",
+    "Weights",
+    "TrackTable",
+    "Control",
+    "Message",
+    "encode",
+    "decode",
+    "frames_from_images",
     "RejectCounter",
 ]
 
@@ -153,6 +164,7 @@ def frames_from_images(images: np.ndarray) -> np.ndarray:
 
 # --- to and from the msgpack map -------------------------------------------------------------
 
+
 def _array_map(value: Any, dtype: str) -> dict:
     arr = np.ascontiguousarray(value, dtype=np.dtype(dtype))
     return {"dtype": dtype, "shape": list(arr.shape), "data": memoryview(arr).cast("B")}
@@ -192,16 +204,30 @@ def _to_map(msg: Message) -> dict:
             m[name] = _array_map(getattr(msg, name), dtype)
         return {"v": SCHEMA_VERSION, "type": "transitions", **m}
     if isinstance(msg, EpisodeSummary):
-        return {"v": SCHEMA_VERSION, "type": "episode", "actor": msg.actor, "env": _int(msg.env),
-                "episode": _int(msg.episode), "track": msg.track, "steps": _int(msg.steps),
-                "return": float(msg.episode_return), "policy_version": _int(msg.policy_version)}
+        return {
+            "v": SCHEMA_VERSION,
+            "type": "episode",
+            "actor": msg.actor,
+            "env": _int(msg.env),
+            "episode": _int(msg.episode),
+            "track": msg.track,
+            "steps": _int(msg.steps),
+            "return": float(msg.episode_return),
+            "policy_version": _int(msg.policy_version),
+        }
     if isinstance(msg, Weights):
         tensors = {}
         for name, value in msg.tensors.items():
             arr = np.asarray(value)
             # keep the float width; any other dtype goes out as-is and is refused as 'dtype'
             tensors[name] = _array_map(arr, arr.dtype.newbyteorder("<").str)
-        return {"v": SCHEMA_VERSION, "type": "weights", "version": _int(msg.version), "epoch": _int(msg.epoch), "tensors": tensors}
+        return {
+            "v": SCHEMA_VERSION,
+            "type": "weights",
+            "version": _int(msg.version),
+            "epoch": _int(msg.epoch),
+            "tensors": tensors,
+        }
     if isinstance(msg, TrackTable):
         steps = {track: _int(n) for track, n in msg.steps.items()}
         return {"v": SCHEMA_VERSION, "type": "tracks", "version": _int(msg.version), "steps": steps}
@@ -280,11 +306,14 @@ def _from_map(m: Any, limits: Limits, expect: type | None) -> Message:
         msg: Message = _chunk_from_map(m, limits)
     elif kind == "episode":
         msg = EpisodeSummary(
-            actor=chk.name(m, "actor"), env=chk.integer(m, "env", hi=2**31 - 1),
+            actor=chk.name(m, "actor"),
+            env=chk.integer(m, "env", hi=2**31 - 1),
             episode=chk.integer(m, "episode"),
             track=chk.text(chk.field(m, "track", str), "track", 256, allow_empty=False),
-            steps=chk.integer(m, "steps"), episode_return=chk.real(m, "return"),
-            policy_version=chk.integer(m, "policy_version"))
+            steps=chk.integer(m, "steps"),
+            episode_return=chk.real(m, "return"),
+            policy_version=chk.integer(m, "policy_version"),
+        )
     elif kind == "weights":
         msg = _weights_from_map(m, limits)
     elif kind == "tracks":
@@ -304,6 +333,7 @@ def _from_map(m: Any, limits: Limits, expect: type | None) -> Message:
 
 # --- public entry points --------------------------------------------------------------------
 
+
 def encode(msg: Message, limits: Limits = DEFAULT_LIMITS) -> bytes:
     """Message -> msgpack bytes; raises WireError if a receiver with `limits` would reject it."""
     wire_map = _to_map(msg)
@@ -314,8 +344,9 @@ def encode(msg: Message, limits: Limits = DEFAULT_LIMITS) -> bytes:
     return payload
 
 
-def decode(payload: bytes | bytearray | memoryview, limits: Limits = DEFAULT_LIMITS,
-           expect: type | None = None) -> Message:
+def decode(
+    payload: bytes | bytearray | memoryview, limits: Limits = DEFAULT_LIMITS, expect: type | None = None
+) -> Message:
     """msgpack bytes -> Message, or WireError for anything that is not a valid message.
 
     Arrays of the result are read-only views of `payload`'s decoded buffers (copy to keep

@@ -13,10 +13,26 @@ from typing import Any
 
 import numpy as np
 
-KINDS = ("decode", "size", "version", "schema", "shape", "dtype", "nonfinite", "value")
+KINDS = (
+    "decode",
+    "size",
+    "version",
+    "schema",
+    "shape",
+    "dtype",
+    "nonfinite",
+    "value",
+    "identity",
+    "range",
+    "seq",
+    "weights",
+    "track",
+)
 """decode: not msgpack (garbage, truncated, trailing bytes); size: over a limit; version: wrong
 schema version; schema: not a map, unknown type, missing/unknown field or wrong field type;
-shape/dtype: an array's; nonfinite: NaN or inf; value: a well-typed value out of range."""
+shape/dtype: an array's; nonfinite: NaN or inf; value: a well-typed value out of range. The
+rest are the content rules of `common.wire_rules`: identity (payload vs key), range (the
+environment's bounds), seq, weights (vs the receiver's policy), track (table bounds)."""
 
 NAME_RE = re.compile(r"^[A-Za-z0-9_.\-]{1,64}$")
 INT_MAX = 2**63 - 1
@@ -123,13 +139,13 @@ def array(m: dict, key: str, dtype: str | tuple[str, ...], shape: tuple | None) 
         raise WireError("dtype", f"array {key!r} dtype {dt!r}, expected one of {allowed}")
     dims = spec["shape"]
     if not isinstance(dims, list) or any(type(d) is not int or not 0 <= d <= MAX_DIM for d in dims):
-        raise WireError("shape", f"array {key!r} shape must be a list of ints in [0, {MAX_DIM}], "
-                                 f"got {dims!r}")
+        raise WireError("shape", f"array {key!r} shape must be a list of ints in [0, {MAX_DIM}], got {dims!r}")
     data = spec["data"]
     if not isinstance(data, (bytes, bytearray, memoryview)):
         raise WireError("schema", f"array {key!r} data must be bin, got {type(data).__name__}")
-    if shape is not None and (len(dims) != len(shape) or any(
-            want is not None and got != want for got, want in zip(dims, shape))):
+    if shape is not None and (
+        len(dims) != len(shape) or any(want is not None and got != want for got, want in zip(dims, shape))
+    ):
         raise WireError("shape", f"array {key!r} shape {dims}, expected {shape}")
     itemsize = np.dtype(dt).itemsize
     # Python ints: a hostile shape cannot overflow the product

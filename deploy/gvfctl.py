@@ -34,8 +34,8 @@ import zenoh
 
 from common.config.transport import TransportConfig
 from common.keys import Keys
-from common.wire import Control, encode
 from common.transport.zenoh_backend import run_router, zenoh_config
+from common.wire import Control, encode
 
 PING_PREFIX = "gvf-ping"
 """Ping keys live outside gvf/<run>/ so that no run's subscriber ever sees them."""
@@ -43,8 +43,9 @@ PING_PREFIX = "gvf-ping"
 
 def transport_config(args: argparse.Namespace) -> TransportConfig:
     """The TransportConfig a client of `args.connect` would use (as learner and actors do)."""
-    return TransportConfig(mode="client", connect=list(args.connect), zenoh_config_file=args.config,
-                           connect_timeout_s=args.timeout)
+    return TransportConfig(
+        mode="client", connect=list(args.connect), zenoh_config_file=args.config, connect_timeout_s=args.timeout
+    )
 
 
 def open_session(args: argparse.Namespace) -> zenoh.Session:
@@ -80,8 +81,10 @@ def cmd_ping(args: argparse.Namespace) -> int:
                 return 1
             rtts.append((time.perf_counter() - t0) * 1e3)
         pub.undeclare()
-    print(f"ok: {args.connect} routes messages; round trip "
-          f"min {min(rtts):.2f} ms, max {max(rtts):.2f} ms over {len(rtts)}")
+    print(
+        f"ok: {args.connect} routes messages; round trip "
+        f"min {min(rtts):.2f} ms, max {max(rtts):.2f} ms over {len(rtts)}"
+    )
     return 0
 
 
@@ -125,8 +128,10 @@ def cmd_control(args: argparse.Namespace) -> int:
         pub.put(payload)
         pub.undeclare()
     if not listening:
-        print(f"sent {args.command!r} on {keys.control}, but nothing subscribes to it "
-              f"(wrong --run, or nothing running?)", file=sys.stderr)
+        print(
+            f"sent {args.command!r} on {keys.control}, but nothing subscribes to it (wrong --run, or nothing running?)",
+            file=sys.stderr,
+        )
         return 1
     print(f"sent {args.command!r} on {keys.control}")
     return 0
@@ -145,9 +150,12 @@ def parser() -> argparse.ArgumentParser:
 
     def client(name: str, help: str) -> argparse.ArgumentParser:
         c = sub.add_parser(name, help=help)
-        c.add_argument("--connect", action="append", metavar="ENDPOINT",
-                       help="router endpoint, e.g. tcp/ROUTER:7447 or tls/ROUTER:7447 (repeatable; "
-                            "default tcp/127.0.0.1:7447)")
+        c.add_argument(
+            "--connect",
+            action="append",
+            metavar="ENDPOINT",
+            help="router endpoint, e.g. tcp/ROUTER:7447 or tls/ROUTER:7447 (repeatable; default tcp/127.0.0.1:7447)",
+        )
         c.add_argument("--config", metavar="JSON5", help="Zenoh config file read first, e.g. client-tls.json5")
         c.add_argument("--timeout", type=float, default=5.0, help="seconds to wait for router and answers")
         c.add_argument("--run", default="default", help="run name (key prefix gvf/<run>/)")
@@ -164,8 +172,12 @@ def parser() -> argparse.ArgumentParser:
         c.add_argument("--reason", default="gvfctl", help="free text carried by the message")
         c.set_defaults(fn=cmd_control, command=command)
     router = sub.add_parser("router", help="a bare Zenoh router for network and certificate checks")
-    router.add_argument("--listen", action="append", metavar="ENDPOINT",
-                        help="endpoint to listen on (repeatable; default tcp/0.0.0.0:7447)")
+    router.add_argument(
+        "--listen",
+        action="append",
+        metavar="ENDPOINT",
+        help="endpoint to listen on (repeatable; default tcp/0.0.0.0:7447)",
+    )
     router.add_argument("--config", metavar="JSON5", help="Zenoh config file read first, e.g. router-tls.json5")
     router.set_defaults(fn=cmd_router)
     return p

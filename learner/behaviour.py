@@ -23,8 +23,7 @@ from torch import Tensor
 ACTION_LOW, ACTION_HIGH = -1.0, 1.0  # the action box of the simulator contract
 
 
-def sample_eta(n: int, action_dim: int = 2, *, device=None,
-               generator: torch.Generator | None = None) -> Tensor:
+def sample_eta(n: int, action_dim: int = 2, *, device=None, generator: torch.Generator | None = None) -> Tensor:
     """a ~ eta: uniform on the action box."""
     u = torch.rand(n, action_dim, device=device, generator=generator)
     return ACTION_LOW + (ACTION_HIGH - ACTION_LOW) * u
@@ -41,8 +40,7 @@ def log_mu_hat(g_logit: Tensor, action: Tensor) -> Tensor:
     return g_logit + log_eta(action)
 
 
-def relabel_half(action: Tensor, generator: torch.Generator | None = None
-                 ) -> tuple[Tensor, Tensor]:
+def relabel_half(action: Tensor, generator: torch.Generator | None = None) -> tuple[Tensor, Tensor]:
     """Algorithm 1, lines 15-16: replace a random half of the actions by eta samples, label 0.
 
     Returns (actions, labels z) with z = 1 for recorded actions and 0 for eta samples.
@@ -55,8 +53,9 @@ def relabel_half(action: Tensor, generator: torch.Generator | None = None
     return torch.where(z.bool(), action, eta), z
 
 
-def behaviour_loss(g: Callable[..., Tensor], obs: tuple[Tensor, ...], action: Tensor,
-                   generator: torch.Generator | None = None) -> Tensor:
+def behaviour_loss(
+    g: Callable[..., Tensor], obs: tuple[Tensor, ...], action: Tensor, generator: torch.Generator | None = None
+) -> Tensor:
     """Binary cross-entropy of g on a uniform minibatch with half its actions from eta.
 
     `g(*obs, action)` returns logits (B, 1); `obs` is the state part of its input.

@@ -57,8 +57,16 @@ def _obs(td: TensorDictBase) -> tuple[Tensor, Tensor, Tensor]:
 class LearningCore:
     """Networks, optimisers and the shared replay of one agent variant; see the module docstring."""
 
-    def __init__(self, agent: AgentConfig, scale: ScaleConfig, *, device: str = "cpu",
-                 seed: int = 0, buffer_size: int | None = None, warmup: int | None = None):
+    def __init__(
+        self,
+        agent: AgentConfig,
+        scale: ScaleConfig,
+        *,
+        device: str = "cpu",
+        seed: int = 0,
+        buffer_size: int | None = None,
+        warmup: int | None = None,
+    ):
         torch.manual_seed(seed)  # the global generator initialises the networks
         self.agent, self.scale, self.device = agent, scale, torch.device(device)
         self.batch_size = scale.batch_size
@@ -68,32 +76,40 @@ class LearningCore:
             module.to(self.device)
         self.predictive = self.nets.representation == "predictive"
         # the replay stays in host memory (torchrl's sum tree is CPU-only); batches move over
-        self.replay = ImportanceResamplingReplay(
-            scale.buffer_size if buffer_size is None else buffer_size, seed=seed)
+        self.replay = ImportanceResamplingReplay(scale.buffer_size if buffer_size is None else buffer_size, seed=seed)
         self.generator = torch.Generator().manual_seed(seed)
         steps = step_sizes(agent, scale)
         if self.predictive:
             self.gammas = expand_gammas(agent.gammas, len(agent.cumulants)).to(self.device)
-            self.gvf_optimizer = torch.optim.Adam(self.nets.gvf.parameters(), lr=steps["lr_gvf"],
-                                                  fused=True)
+            self.gvf_optimizer = torch.optim.Adam(self.nets.gvf.parameters(), lr=steps["lr_gvf"], fused=True)
             self.behaviour_optimizer = torch.optim.Adam(
-                self.nets.behaviour.parameters(), lr=steps["lr_behaviour"], fused=True)
+                self.nets.behaviour.parameters(), lr=steps["lr_behaviour"], fused=True
+            )
             keys = ["phi"]
         else:
             keys = list(OBS_KEYS)
         lowdim = ["lowdim"] if self.nets.representation == "lowdim" else []
-        self.ddpg = DDPG(self.nets.actor, self.nets.critic,
-                         actor_in_keys=keys + lowdim,
-                         critic_in_keys=keys + ["action"] + lowdim,
-                         discount=steps["discount"], target_update=steps["target_update"],
-                         lr_actor=steps["lr_actor"], lr_critic=steps["lr_critic"], td3=scale.td3,
-                         policy_noise=scale.td3_policy_noise, noise_clip=scale.td3_noise_clip,
-                         actor_delay=scale.td3_actor_delay)
+        self.ddpg = DDPG(
+            self.nets.actor,
+            self.nets.critic,
+            actor_in_keys=keys + lowdim,
+            critic_in_keys=keys + ["action"] + lowdim,
+            discount=steps["discount"],
+            target_update=steps["target_update"],
+            lr_actor=steps["lr_actor"],
+            lr_critic=steps["lr_critic"],
+            td3=scale.td3,
+            policy_noise=scale.td3_policy_noise,
+            noise_clip=scale.td3_noise_clip,
+            actor_delay=scale.td3_actor_delay,
+        )
         self.updates = 0
         self.warm = False  # g trained on the warm-up data and every rho recomputed
         self.held_out: TensorDictBase | None = None
         self._rho_seen = 0
         self._rho_clipped = 0
+        self.skipped_nonfinite = 0
+        """Updates skipped because their loss or a gradient was not finite."""
 
     # --- Algorithm 1, lines 8-10 -------------------------------------------------------
     @torch.no_grad()
@@ -101,16 +117,23 @@ class LearningCore:
         """rho = tau(a|s) / mu_hat(a|s), clipped; and which ones were clipped."""
         action = td["action"]
         logit = self.nets.behaviour(*_obs(td), action)
-        return importance_ratio(log_tau(action, td["last_action"], self.agent.tau_width),
-                                log_mu_hat(logit, action), self.agent.rho_max)
+        return importance_ratio(
+            log_tau(action, td["last_action"], self.agent.tau_width), log_mu_hat(logit, action), self.agent.rho_max
+        )
 
     @torch.no_grad()
     def refresh_all_rho(self, slice_size: int = 4 * RHO_SLICE) -> None:
         """Recompute the rho of every stored item with the current g; rho_bar becomes exact."""
         for index, stored in self.replay.slots(slice_size):
-            obs = TensorDict({"image": stored["image"].view(torch.uint8), "speed": stored["speed"],
-                              "last_action": stored["last_action"], "action": stored["action"]},
-                             batch_size=stored.batch_size).to(self.device)
+            obs = TensorDict(
+                {
+                    "image": stored["image"].view(torch.uint8),
+                    "speed": stored["speed"],
+                    "last_action": stored["last_action"],
+                    "action": stored["action"],
+                },
+                batch_size=stored.batch_size,
+            ).to(self.device)
             self.replay.update_rho(index, self.rho(obs)[0])
         self.replay.resum_rho()
 
@@ -167,6 +190,11 @@ class LearningCore:
         total = loss_ddpg + sum(losses.values())
         self._zero_grad()
         total.backward()
+        if not self._finite(total):
+            # never learn from a non-finite loss or gradient: the step is skipped and counted
+            self.skipped_nonfinite += 1
+            self._zero_grad()
+            return {}
         report = (self.updates + 1) % self.agent.metrics_every == 0
         if report:  # before the step: the gradient and actions that made it
             losses.update(self._diagnostics(ddpg_batch))
@@ -177,13 +205,30 @@ class LearningCore:
         return self._metrics(losses, out)
 
     @torch.no_grad()
+    def _finite(self, total: Tensor) -> bool:
+        """The loss and every gradient are finite (one host sync for all of them)."""
+        grads = [
+            p.grad
+            for opt in self._optimizers()
+            for group in opt.param_groups
+            for p in group["params"]
+            if p.grad is not None
+        ]
+        return bool(torch.isfinite(total + torch.nn.utils.get_total_norm(grads)))
+
+    @torch.no_grad()
     def _diagnostics(self, ddpg_batch: TensorDictBase) -> dict[str, Tensor]:
         """Actor gradient norm and how often its output sits at a bound (|a| > 0.99), per action."""
         grads = [p.grad for p in self.nets.actor.parameters() if p.grad is not None]
-        action = self.ddpg.loss_module.actor_network(ddpg_batch.select(*self.ddpg.loss_module.actor_network.in_keys))["action"]
+        action = self.ddpg.loss_module.actor_network(ddpg_batch.select(*self.ddpg.loss_module.actor_network.in_keys))[
+            "action"
+        ]
         saturated = (action.abs() > 0.99).float().mean(0)
-        return {"diag/actor_grad_norm": torch.nn.utils.get_total_norm(grads),
-                "diag/saturated_steering": saturated[0], "diag/saturated_speed": saturated[1]}
+        return {
+            "diag/actor_grad_norm": torch.nn.utils.get_total_norm(grads),
+            "diag/saturated_steering": saturated[0],
+            "diag/saturated_speed": saturated[1],
+        }
 
     def _predictive_step(self, uniform: TensorDictBase, losses: dict[str, Tensor]) -> TensorDict:
         gvf, n = self.nets.gvf, self.batch_size
@@ -196,19 +241,29 @@ class LearningCore:
         # v(s') of A, phi(s) and phi(s') of U: three calls, as one 3n batch is slower on CPU
         with torch.no_grad():
             v = [gvf(*_obs(td)) for td in (batch["next"], uniform, uniform["next"])]
-        target = td_target(cumulants(batch["next"], self.agent.cumulants),
-                           batch["next", "terminated"], v[0], self.gammas, self.agent.gvf_terminal)
+        target = td_target(
+            cumulants(batch["next"], self.agent.cumulants),
+            batch["next", "terminated"],
+            v[0],
+            self.gammas,
+            self.agent.gvf_terminal,
+        )
         losses["td"] = gvf_loss(gvf(*_obs(batch)), target, rho_bar)
-        losses["behaviour"] = behaviour_loss(self.nets.behaviour, _obs(uniform),
-                                             uniform["action"], self.generator)
+        losses["behaviour"] = behaviour_loss(self.nets.behaviour, _obs(uniform), uniform["action"], self.generator)
         nxt = uniform["next"]
-        return TensorDict({
-            "phi": phi(v[1], uniform["speed"], uniform["last_action"]),
-            "action": uniform["action"],
-            "next": {"phi": phi(v[2], nxt["speed"], nxt["last_action"]),
-                     "reward": nxt["reward"] * self.scale.reward_scale, "done": nxt["done"],
-                     "terminated": nxt["terminated"]},
-        }, batch_size=[n])
+        return TensorDict(
+            {
+                "phi": phi(v[1], uniform["speed"], uniform["last_action"]),
+                "action": uniform["action"],
+                "next": {
+                    "phi": phi(v[2], nxt["speed"], nxt["last_action"]),
+                    "reward": nxt["reward"] * self.scale.reward_scale,
+                    "done": nxt["done"],
+                    "terminated": nxt["terminated"],
+                },
+            },
+            batch_size=[n],
+        )
 
     def _mirrored(self, batch: TensorDictBase) -> TensorDictBase:
         """`scale.mirror` of the items mirrored left-right, drawn independently per item."""
@@ -239,8 +294,7 @@ class LearningCore:
         self.ddpg.step()  # critic, actor (every td3_actor_delay-th with td3), then the targets
 
     def _metrics(self, losses: dict[str, Tensor], out: TensorDictBase) -> dict[str, float]:
-        metrics = {name if "/" in name else f"losses/{name}": float(value.detach())
-                   for name, value in losses.items()}
+        metrics = {name if "/" in name else f"losses/{name}": float(value.detach()) for name, value in losses.items()}
         metrics["losses/actor"] = float(out["loss_actor"].detach())
         metrics["losses/critic"] = float(out["loss_value"].detach())
         metrics["train/q_mean"] = float(out["pred_value"].detach().mean())
@@ -249,13 +303,21 @@ class LearningCore:
         metrics["train/q_min"], metrics["train/q_max"] = float(q.min()), float(q.max())
         metrics["train/updates"] = float(self.updates)
         metrics["train/replay_size"] = float(len(self.replay))
+        metrics["train/skipped_nonfinite"] = float(self.skipped_nonfinite)
         if self.predictive:
             metrics["train/rho_bar"] = self.replay.rho_bar
             metrics["train/rho_clip_rate"] = self._rho_clipped / max(self._rho_seen, 1)
             self._rho_seen = self._rho_clipped = 0
             if self.held_out is not None:
-                metrics.update(prediction_error(self.nets.gvf, self.held_out, self.agent.cumulants,
-                                                self.agent.gammas, terminal=self.agent.gvf_terminal))
+                metrics.update(
+                    prediction_error(
+                        self.nets.gvf,
+                        self.held_out,
+                        self.agent.cumulants,
+                        self.agent.gammas,
+                        terminal=self.agent.gvf_terminal,
+                    )
+                )
         return metrics
 
     # --- weights and checkpoints ---------------------------------------------------------------

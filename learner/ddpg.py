@@ -32,11 +32,22 @@ from torchrl.objectives import DDPGLoss, SoftUpdate, TD3Loss, ValueEstimators
 class DDPG:
     """DDPG losses, optimisers and target updates for one actor/critic pair."""
 
-    def __init__(self, actor: nn.Module, critic: nn.Module, *,
-                 actor_in_keys: Sequence[str], critic_in_keys: Sequence[str],
-                 discount: float = 0.99, target_update: float = 0.001,
-                 lr_actor: float = 1e-6, lr_critic: float = 1e-4, td3: bool = False,
-                 policy_noise: float = 0.2, noise_clip: float = 0.5, actor_delay: int = 2):
+    def __init__(
+        self,
+        actor: nn.Module,
+        critic: nn.Module,
+        *,
+        actor_in_keys: Sequence[str],
+        critic_in_keys: Sequence[str],
+        discount: float = 0.99,
+        target_update: float = 0.001,
+        lr_actor: float = 1e-6,
+        lr_critic: float = 1e-4,
+        td3: bool = False,
+        policy_noise: float = 0.2,
+        noise_clip: float = 0.5,
+        actor_delay: int = 2,
+    ):
         self.actor, self.critic = actor, critic
         self.td3, self.actor_delay, self.steps = td3, actor_delay, 0
         actor_module = TensorDictModule(actor, in_keys=list(actor_in_keys), out_keys=["action"])
@@ -49,9 +60,16 @@ class DDPG:
             for module in twin.modules():  # the twin starts elsewhere, or the two critics agree
                 if hasattr(module, "reset_parameters"):
                     module.reset_parameters()
-            self.loss_module = TD3Loss(actor_module, [q(critic), q(twin)], bounds=(-1.0, 1.0), num_qvalue_nets=2,
-                                       policy_noise=policy_noise, noise_clip=noise_clip, loss_function="l2",
-                                       deactivate_vmap=True)  # vmap cannot run the channels_last conv trunk
+            self.loss_module = TD3Loss(
+                actor_module,
+                [q(critic), q(twin)],
+                bounds=(-1.0, 1.0),
+                num_qvalue_nets=2,
+                policy_noise=policy_noise,
+                noise_clip=noise_clip,
+                loss_function="l2",
+                deactivate_vmap=True,
+            )  # vmap cannot run the channels_last conv trunk
             # the twin critics' parameters live stacked in the loss module, not in `critic`
             critic_params = list(self.loss_module.qvalue_network_params.values(True, True))
         else:
@@ -96,9 +114,12 @@ class DDPG:
         return out.detach()
 
     def state_dict(self) -> dict:
-        return {"loss": self.loss_module.state_dict(), "steps": self.steps,
-                "actor_optimizer": self.actor_optimizer.state_dict(),
-                "critic_optimizer": self.critic_optimizer.state_dict()}
+        return {
+            "loss": self.loss_module.state_dict(),
+            "steps": self.steps,
+            "actor_optimizer": self.actor_optimizer.state_dict(),
+            "critic_optimizer": self.critic_optimizer.state_dict(),
+        }
 
     def load_state_dict(self, state: dict) -> None:
         self.loss_module.load_state_dict(state["loss"])

@@ -53,13 +53,11 @@ def log_tau(action: Tensor, last_action: Tensor, width: float) -> Tensor:
     mean = last_action.clamp(ACTION_LOW, ACTION_HIGH)
     z = (action - mean) / width
     log_pdf = -0.5 * z.square() - math.log(width) - _LOG_SQRT_2PI
-    mass = (torch.special.ndtr((ACTION_HIGH - mean) / width)
-            - torch.special.ndtr((ACTION_LOW - mean) / width))
+    mass = torch.special.ndtr((ACTION_HIGH - mean) / width) - torch.special.ndtr((ACTION_LOW - mean) / width)
     return (log_pdf - mass.log()).sum(-1, keepdim=True)
 
 
-def importance_ratio(log_tau_value: Tensor, log_mu_hat_value: Tensor, rho_max: float
-                     ) -> tuple[Tensor, Tensor]:
+def importance_ratio(log_tau_value: Tensor, log_mu_hat_value: Tensor, rho_max: float) -> tuple[Tensor, Tensor]:
     """rho = tau / mu_hat clipped to rho_max (Algorithm 1, line 9); returns (rho, was_clipped)."""
     rho = (log_tau_value - log_mu_hat_value).exp()
     clipped = rho > rho_max
@@ -76,8 +74,9 @@ def expand_gammas(gammas: Sequence[float] | Tensor, n_cumulants: int) -> Tensor:
     return torch.as_tensor(gammas, dtype=torch.float32).repeat(n_cumulants)
 
 
-def td_target(cumulant: Tensor, terminated: Tensor, next_predictions: Tensor,
-              gammas: Tensor, terminal: str = "zero") -> Tensor:
+def td_target(
+    cumulant: Tensor, terminated: Tensor, next_predictions: Tensor, gammas: Tensor, terminal: str = "zero"
+) -> Tensor:
     """y = (1 - gamma) c_{t+1} + gamma b_{t+1} for every (cumulant, gamma), where b is v(s_{t+1})
     without gradient, or at a termination c_{t+1} ("absorbing") or 0 ("zero").
 

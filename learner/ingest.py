@@ -7,8 +7,6 @@ step t's cumulants are alpha[t+1], beta[t+1] (the next state's, Algorithm 1 line
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
-
 import numpy as np
 import torch
 from tensordict import TensorDict
@@ -31,10 +29,10 @@ def chunks_to_transitions(chunks: list[TransitionChunk], next_image: bool = True
     start = 0
     for c, n in zip(chunks, steps):
         frames, end = c.frames, start + n
-        image[start:end, 0], image[start:end, 1] = frames[1:n + 1], frames[:n]
-        following[start:end, 0] = frames[2:n + 2]
+        image[start:end, 0], image[start:end, 1] = frames[1 : n + 1], frames[:n]
+        following[start:end, 0] = frames[2 : n + 2]
         if next_image:
-            following[start:end, 1] = frames[1:n + 1]
+            following[start:end, 1] = frames[1 : n + 1]
         start = end
 
     def cat(get) -> torch.Tensor:
@@ -62,29 +60,3 @@ def chunks_to_transitions(chunks: list[TransitionChunk], next_image: bool = True
         },
         batch_size=[total],
     )
-
-
-@dataclass
-class SequenceTracker:
-    """Counts lost chunks per actor from gaps in its sequence numbers.
-
-    A sequence number lower than expected means the actor restarted (it counts from 0 again).
-    """
-
-    expected: dict[str, int] = field(default_factory=dict)
-    lost: int = 0
-    received: int = 0
-    restarts: int = 0
-
-    def see(self, actor: str, seq: int) -> int:
-        """Record chunk `seq` of `actor`; returns how many chunks were lost just before it."""
-        self.received += 1
-        want = self.expected.get(actor)
-        self.expected[actor] = seq + 1
-        if want is None:
-            return 0
-        if seq < want:
-            self.restarts += 1
-            return 0
-        self.lost += seq - want
-        return seq - want

@@ -20,8 +20,9 @@ from torch import Tensor
 from learner.gvf import cumulants, expand_gammas
 
 
-def recorded_returns(cumulant: Tensor, terminated: Tensor, done: Tensor, gammas: Tensor,
-                     tail_tol: float = 0.01, terminal: str = "zero") -> tuple[Tensor, Tensor]:
+def recorded_returns(
+    cumulant: Tensor, terminated: Tensor, done: Tensor, gammas: Tensor, tail_tol: float = 0.01, terminal: str = "zero"
+) -> tuple[Tensor, Tensor]:
     """Returns (T, C*G) and a validity mask (T, C*G) of a time-ordered trajectory.
 
     cumulant (T, C) is c_{t+1} of transition t; terminated and done (T,) end episodes; after a
@@ -47,9 +48,14 @@ def recorded_returns(cumulant: Tensor, terminated: Tensor, done: Tensor, gammas:
 
 
 @torch.no_grad()
-def prediction_error(gvf: Callable[..., Tensor], trajectory: TensorDictBase,
-                     names: Sequence[str], gammas: Sequence[float],
-                     chunk: int = 256, terminal: str = "zero") -> dict[str, float]:
+def prediction_error(
+    gvf: Callable[..., Tensor],
+    trajectory: TensorDictBase,
+    names: Sequence[str],
+    gammas: Sequence[float],
+    chunk: int = 256,
+    terminal: str = "zero",
+) -> dict[str, float]:
     """RMSE of the predictions against recorded returns, per cumulant, and of the best constant.
 
     Keys: `eval/gvf_return_rmse_<name>`, `eval/constant_return_rmse_<name>` (predicting the
@@ -58,12 +64,12 @@ def prediction_error(gvf: Callable[..., Tensor], trajectory: TensorDictBase,
     nxt = trajectory["next"]
     expanded = expand_gammas(gammas, len(names)).to(trajectory.device)
     terminated = nxt["terminated"].reshape(-1)
-    returns, valid = recorded_returns(cumulants(nxt, names), terminated,
-                                      terminated | nxt["truncated"].reshape(-1), expanded,
-                                      terminal=terminal)
-    predictions = torch.cat([
-        gvf(part["image"], part["speed"], part["last_action"])
-        for part in trajectory.split(chunk, 0)])
+    returns, valid = recorded_returns(
+        cumulants(nxt, names), terminated, terminated | nxt["truncated"].reshape(-1), expanded, terminal=terminal
+    )
+    predictions = torch.cat(
+        [gvf(part["image"], part["speed"], part["last_action"]) for part in trajectory.split(chunk, 0)]
+    )
     valid = valid.float()
     count = valid.sum(0).clamp(min=1.0)
     mean = (returns * valid).sum(0) / count

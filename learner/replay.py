@@ -39,8 +39,7 @@ PRIORITY_EPS = 1e-8
 class ImportanceResamplingReplay:
     """Ring buffer of TensorDicts carrying a "rho" entry (B, 1); see the module docstring."""
 
-    def __init__(self, capacity: int, *, device: str | torch.device = "cpu",
-                 seed: int | None = None):
+    def __init__(self, capacity: int, *, device: str | torch.device = "cpu", seed: int | None = None):
         self.capacity = capacity
         self.generator = torch.Generator()
         if seed is not None:
@@ -48,9 +47,10 @@ class ImportanceResamplingReplay:
         self.buffer = TensorDictReplayBuffer(
             storage=LazyTensorStorage(capacity, device=device),
             # float32 tree: torchrl 0.14's float64 tree rejects its own default priority
-            sampler=PrioritizedSampler(capacity, alpha=1.0, beta=0.0, eps=PRIORITY_EPS,
-                                       device="cpu"),
-            priority_key="rho", generator=self.generator)
+            sampler=PrioritizedSampler(capacity, alpha=1.0, beta=0.0, eps=PRIORITY_EPS, device="cpu"),
+            priority_key="rho",
+            generator=self.generator,
+        )
         # rho of every slot, the source of the running sum's evictions
         self.rho = torch.zeros(capacity, dtype=torch.float64)
         self._rho_sum = 0.0
@@ -107,8 +107,12 @@ class ImportanceResamplingReplay:
         return data
 
     def state_dict(self) -> dict[str, Any]:
-        return {"buffer": self.buffer.state_dict(), "rho": self.rho.clone(),
-                "rho_sum": self._rho_sum, "generator": self.generator.get_state()}
+        return {
+            "buffer": self.buffer.state_dict(),
+            "rho": self.rho.clone(),
+            "rho_sum": self._rho_sum,
+            "generator": self.generator.get_state(),
+        }
 
     def load_state_dict(self, state: dict[str, Any]) -> None:
         self.buffer.load_state_dict(state["buffer"])
@@ -123,8 +127,7 @@ def _first_occurrence(index: Tensor) -> tuple[Tensor, Tensor]:
     """Unique values of `index` and the position of each one's first occurrence."""
     unique, inverse = torch.unique(index, return_inverse=True)
     position = torch.arange(index.numel())
-    first = torch.full_like(unique, index.numel()).scatter_reduce(
-        0, inverse, position, reduce="amin")
+    first = torch.full_like(unique, index.numel()).scatter_reduce(0, inverse, position, reduce="amin")
     return unique, first
 
 
@@ -137,32 +140,50 @@ def compact(transitions: TensorDictBase, rho: Tensor) -> TensorDict:
     """Storage layout of a batch of LaneDrive transitions (see the module docstring)."""
     nxt = transitions["next"]
     next_frame = nxt["frame"] if "frame" in nxt.keys() else nxt["image"][:, :1]
-    return TensorDict({
-        "image": _packed(transitions["image"]), "speed": transitions["speed"],
-        "last_action": transitions["last_action"],
-        "alpha": transitions["alpha"], "beta": transitions["beta"],
-        "action": transitions["action"],
-        "next_frame": _packed(next_frame), "next_speed": nxt["speed"],
-        "next_alpha": nxt["alpha"], "next_beta": nxt["beta"],
-        "reward": nxt["reward"], "terminated": nxt["terminated"].bool(),
-        "truncated": nxt["truncated"].bool(),
-        "rho": rho.reshape(-1, 1).float(),
-    }, batch_size=transitions.batch_size[:1])
+    return TensorDict(
+        {
+            "image": _packed(transitions["image"]),
+            "speed": transitions["speed"],
+            "last_action": transitions["last_action"],
+            "alpha": transitions["alpha"],
+            "beta": transitions["beta"],
+            "action": transitions["action"],
+            "next_frame": _packed(next_frame),
+            "next_speed": nxt["speed"],
+            "next_alpha": nxt["alpha"],
+            "next_beta": nxt["beta"],
+            "reward": nxt["reward"],
+            "terminated": nxt["terminated"].bool(),
+            "truncated": nxt["truncated"].bool(),
+            "rho": rho.reshape(-1, 1).float(),
+        },
+        batch_size=transitions.batch_size[:1],
+    )
 
 
 def expand(stored: TensorDictBase) -> TensorDict:
     """Back to torchrl's convention: the next image is [new frame, frame t]."""
     done = stored["terminated"] | stored["truncated"]
     image = stored["image"].view(torch.uint8)
-    return TensorDict({
-        "image": image, "speed": stored["speed"],
-        "last_action": stored["last_action"],
-        "alpha": stored["alpha"], "beta": stored["beta"], "action": stored["action"],
-        "next": {
-            "image": torch.cat([stored["next_frame"].view(torch.uint8), image[:, :1]], 1),
-            "speed": stored["next_speed"], "last_action": stored["action"],
-            "alpha": stored["next_alpha"], "beta": stored["next_beta"],
-            "reward": stored["reward"], "terminated": stored["terminated"],
-            "truncated": stored["truncated"], "done": done,
+    return TensorDict(
+        {
+            "image": image,
+            "speed": stored["speed"],
+            "last_action": stored["last_action"],
+            "alpha": stored["alpha"],
+            "beta": stored["beta"],
+            "action": stored["action"],
+            "next": {
+                "image": torch.cat([stored["next_frame"].view(torch.uint8), image[:, :1]], 1),
+                "speed": stored["next_speed"],
+                "last_action": stored["action"],
+                "alpha": stored["next_alpha"],
+                "beta": stored["next_beta"],
+                "reward": stored["reward"],
+                "terminated": stored["terminated"],
+                "truncated": stored["truncated"],
+                "done": done,
+            },
         },
-    }, batch_size=stored.batch_size)
+        batch_size=stored.batch_size,
+    )

@@ -6,9 +6,9 @@ import threading
 from actors.actor import run_actor
 from common import wire
 from common.config.transport import TransportConfig
-from common.transport.inproc import InprocTransport
 from common.keys import Keys
 from common.networks import make_policy
+from common.transport.inproc import InprocTransport
 from tests.fakes import CountingVectorEnv
 
 ENDS = [1000, 13]  # car 0 never ends in these tests, car 1 every 13 steps
@@ -34,7 +34,9 @@ class FakeLearner:
 def start_actor(cfg, bus, stop, made):
     def factory(cfg, sampler):
         made["sampler"] = sampler
-        made["env"] = CountingVectorEnv(ENDS, on_episode_end=lambda i, info: sampler.record(str(info["track"]), int(info["steps"])))
+        made["env"] = CountingVectorEnv(
+            ENDS, on_episode_end=lambda i, info: sampler.record(str(info["track"]), int(info["steps"]))
+        )
         return made["env"]
 
     result = {}
@@ -42,8 +44,6 @@ def start_actor(cfg, bus, stop, made):
     thread = threading.Thread(target=lambda: result.update(run_actor(cfg, t, stop, env_factory=factory)))
     thread.start()
     return thread, result
-
-
 
 
 def actor_chunks(cfg, bus):

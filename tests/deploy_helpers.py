@@ -18,7 +18,6 @@ import zenoh
 from common.config.transport import TransportConfig
 from common.transport.zenoh_backend import open_router, zenoh_config
 
-
 REPO = Path(__file__).resolve().parents[1]
 DEPLOY = REPO / "deploy"
 ZENOH_DIR = DEPLOY / "zenoh"
@@ -29,8 +28,8 @@ CERT_DIR_IN_CONFIGS = "/etc/gvf/tls"
 PY = sys.executable
 
 
-
 # --- helpers ----------------------------------------------------------------------------------
+
 
 def free_port(host: str = "127.0.0.1") -> int:
     with socket.socket() as s:
@@ -74,8 +73,12 @@ def router_process(config_file: Path | None, endpoints: list[str]):
 
 
 def client(config_file: Path | None, endpoint: str, timeout_s: float = 10.0) -> zenoh.Session:
-    cfg = TransportConfig(mode="client", connect=[endpoint], connect_timeout_s=timeout_s,
-                          zenoh_config_file=str(config_file) if config_file else None)
+    cfg = TransportConfig(
+        mode="client",
+        connect=[endpoint],
+        connect_timeout_s=timeout_s,
+        zenoh_config_file=str(config_file) if config_file else None,
+    )
     return zenoh.open(zenoh_config(cfg))
 
 

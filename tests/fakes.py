@@ -30,14 +30,26 @@ def random_transitions(n: int, seed: int = 0, terminal_rate: float = 0.05) -> Te
     def frames(c):
         return torch.randint(0, 256, (n, c, H, W), generator=g, dtype=torch.uint8)
 
-    return TensorDict({
-        "image": frames(2), "speed": torch.rand(n, 1, generator=g), "last_action": u(n, 2),
-        "alpha": u(n, 1), "beta": 0.3 * u(n, 1), "action": u(n, 2),
-        "next": {"image": frames(2), "speed": torch.rand(n, 1, generator=g),
-                 "alpha": u(n, 1), "beta": 0.3 * u(n, 1), "reward": u(n, 1),
-                 "terminated": torch.rand(n, 1, generator=g) < terminal_rate,
-                 "truncated": torch.zeros(n, 1, dtype=torch.bool)},
-    }, batch_size=[n])
+    return TensorDict(
+        {
+            "image": frames(2),
+            "speed": torch.rand(n, 1, generator=g),
+            "last_action": u(n, 2),
+            "alpha": u(n, 1),
+            "beta": 0.3 * u(n, 1),
+            "action": u(n, 2),
+            "next": {
+                "image": frames(2),
+                "speed": torch.rand(n, 1, generator=g),
+                "alpha": u(n, 1),
+                "beta": 0.3 * u(n, 1),
+                "reward": u(n, 1),
+                "terminated": torch.rand(n, 1, generator=g) < terminal_rate,
+                "truncated": torch.zeros(n, 1, dtype=torch.bool),
+            },
+        },
+        batch_size=[n],
+    )
 
 
 class FakeLaneDrive:
@@ -80,8 +92,9 @@ class FakeLaneDrive:
     def render(self) -> np.ndarray:
         d = self.distance[None]  # (1, H, 1)
         kappa = self.curvature(self.s[:, None, None] + d)
-        centre = (-self.alpha[:, None, None] - d * np.tan(self.beta)[:, None, None]
-                  + 0.5 * kappa * d ** 2)  # lane centre, lateral metres in the car frame
+        centre = (
+            -self.alpha[:, None, None] - d * np.tan(self.beta)[:, None, None] + 0.5 * kappa * d**2
+        )  # lane centre, lateral metres in the car frame
         scale = 40.0 / d  # pixels per metre at that distance
         image = np.zeros((self.n, H, W), np.uint8)
         for edge in (-1.0, 1.0):
@@ -90,9 +103,11 @@ class FakeLaneDrive:
         return image
 
     def observation(self) -> dict[str, np.ndarray]:
-        return {"image": np.stack([self.frame, self.prev], 1),
-                "speed": self.speed[:, None].astype(np.float32),  # fraction of max speed
-                "last_action": self.last_action.copy()}
+        return {
+            "image": np.stack([self.frame, self.prev], 1),
+            "speed": self.speed[:, None].astype(np.float32),  # fraction of max speed
+            "last_action": self.last_action.copy(),
+        }
 
     def info(self) -> dict[str, np.ndarray]:
         return {"alpha": self.alpha.astype(np.float32), "beta": self.beta.astype(np.float32)}
@@ -114,8 +129,7 @@ class FakeLaneDrive:
         return self.observation(), reward, terminated, truncated, self.info()
 
 
-def steering_controller(info: dict[str, np.ndarray], k_alpha: float = 1.0,
-                        k_beta: float = 3.0) -> np.ndarray:
+def steering_controller(info: dict[str, np.ndarray], k_alpha: float = 1.0, k_beta: float = 3.0) -> np.ndarray:
     """Steer back to the lane centre from alpha and beta; keep the middle target speed."""
     steer = np.clip(-k_alpha * info["alpha"] - k_beta * info["beta"], -1.0, 1.0)
     return np.stack([steer, np.zeros_like(steer)], -1).astype(np.float32)
@@ -130,13 +144,22 @@ def collect(n_envs: int, n_steps: int, seed: int = 0, sigma: float = 0.1) -> Ten
     for _ in range(n_steps):
         action = np.clip(steering_controller(info) + noise.sample(), -1.0, 1.0)
         next_obs, reward, terminated, truncated, next_info = env.step(action)
-        steps.append({
-            **obs,
-            "alpha": info["alpha"][:, None], "beta": info["beta"][:, None], "action": action,
-            "next": {**next_obs, "alpha": next_info["alpha"][:, None],
-                     "beta": next_info["beta"][:, None], "reward": reward[:, None],
-                     "terminated": terminated[:, None], "truncated": truncated[:, None]},
-        })
+        steps.append(
+            {
+                **obs,
+                "alpha": info["alpha"][:, None],
+                "beta": info["beta"][:, None],
+                "action": action,
+                "next": {
+                    **next_obs,
+                    "alpha": next_info["alpha"][:, None],
+                    "beta": next_info["beta"][:, None],
+                    "reward": reward[:, None],
+                    "terminated": terminated[:, None],
+                    "truncated": truncated[:, None],
+                },
+            }
+        )
         done = terminated | truncated
         if done.any():
             env.reset(done)
@@ -149,8 +172,10 @@ def collect(n_envs: int, n_steps: int, seed: int = 0, sigma: float = 0.1) -> Ten
 
 def _stack(steps: list[dict]) -> dict:
     """List over time of nested dicts of (n_envs, ...) arrays -> nested dict of tensors."""
-    return {k: _stack([s[k] for s in steps]) if isinstance(v, dict)
-            else torch.as_tensor(np.stack([s[k] for s in steps])) for k, v in steps[0].items()}
+    return {
+        k: _stack([s[k] for s in steps]) if isinstance(v, dict) else torch.as_tensor(np.stack([s[k] for s in steps]))
+        for k, v in steps[0].items()
+    }
 
 
 class CountingVectorEnv:
@@ -171,11 +196,19 @@ class CountingVectorEnv:
         image = np.empty((self.num_envs, 2, H, W), np.uint8)
         for i, t in enumerate(self.t):
             image[i, 0], image[i, 1] = t % 256, max(t - 1, 0) % 256
-        return {"image": image, "speed": np.full((self.num_envs, 1), 0.5, np.float32), "last_action": self.last_action.copy()}
+        return {
+            "image": image,
+            "speed": np.full((self.num_envs, 1), 0.5, np.float32),
+            "last_action": self.last_action.copy(),
+        }
 
     def _info(self):
-        return {"alpha": self.t / 100.0, "beta": np.zeros(self.num_envs), "track": np.array(["alder"] * self.num_envs),
-                "steps": self.t.copy()}
+        return {
+            "alpha": self.t / 100.0,
+            "beta": np.zeros(self.num_envs),
+            "track": np.array(["alder"] * self.num_envs),
+            "steps": self.t.copy(),
+        }
 
     def reset(self, seed=None):
         self.t[:] = 0
@@ -190,8 +223,10 @@ class CountingVectorEnv:
         info = self._info()
         if terminated.any():
             final = self._obs()
-            info["final_obs"] = np.array([{k: v[i] for k, v in final.items()} if terminated[i] else None
-                                          for i in range(self.num_envs)], dtype=object)
+            info["final_obs"] = np.array(
+                [{k: v[i] for k, v in final.items()} if terminated[i] else None for i in range(self.num_envs)],
+                dtype=object,
+            )
             info["final_info"] = {k: v.copy() for k, v in info.items() if k != "final_obs"}
             for i in np.flatnonzero(terminated):
                 if self.on_episode_end is not None:

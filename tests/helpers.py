@@ -14,9 +14,14 @@ BIN = Path(sys.executable).parent
 
 # A config small enough for tests on 2 cores: tiny warm-up and frequent weights.
 TINY = [
-    "scale.warmup=64", "scale.batch_size=32", "scale.buffer_size=5000",
-    "actor.num_envs=2", "actor.chunk_len=16", "learner.publish_every=5",
-    "learner.samples_per_insert=4", "learner.checkpoint_every=50",
+    "scale.warmup=64",
+    "scale.batch_size=32",
+    "scale.buffer_size=5000",
+    "actor.num_envs=2",
+    "actor.chunk_len=16",
+    "learner.publish_every=5",
+    "learner.samples_per_insert=4",
+    "learner.checkpoint_every=50",
     "learner.torch_threads=1",  # leave a core to the actor and router of a test run
 ]
 

@@ -7,7 +7,7 @@ import pytest
 from actors.acting import Acting
 from common.config.agent import AgentConfig, ScaleConfig
 from common.config.run import ActorConfig
-from common.wire import Weights, decode, encode
+from common.wire import RejectCounter, Weights, WireError, decode, encode
 
 
 def weights(acting: Acting, version: int, epoch: int, fill: float) -> Weights:
@@ -21,7 +21,9 @@ def first_value(acting: Acting) -> float:
 
 @pytest.fixture
 def acting() -> Acting:
-    scale = ScaleConfig(name="t", conv_channels=[2, 2, 2, 2, 2], gvf_hidden=[8], behaviour_hidden=[8], policy_hidden=[8])
+    scale = ScaleConfig(
+        name="t", conv_channels=[2, 2, 2, 2, 2], gvf_hidden=[8], behaviour_hidden=[8], policy_hidden=[8]
+    )
     return Acting(AgentConfig(name="gvf_ddpg"), scale, ActorConfig(), 1, seed=0)
 
 
@@ -42,8 +44,18 @@ def test_a_resumed_learner_with_lower_versions_is_followed(acting):
     assert acting.load(weights(acting, 42, epoch=8, fill=0.6))
 
 
-def test_weights_of_another_policy_shape_are_refused(acting):
-    bad = Weights(1, {"w": np.zeros(3, np.float32)}, epoch=1)
-    with pytest.raises(ValueError, match="do not fit"):
-        acting.load(bad)
-    assert not acting.ready
+def test_weights_that_do_not_fit_or_are_not_finite_are_counted_and_dropped(acting):
+    good = weights(acting, 3, epoch=1, fill=0.1)
+    assert acting.load(good)
+    rejects = RejectCounter()
+    name, first = next(iter(good.tensors.items()))
+    missing = Weights(4, {k: v for k, v in good.tensors.items() if k != name}, epoch=1)
+    reshaped = Weights(5, {**good.tensors, name: np.zeros((1, *first.shape), np.float32)}, epoch=1)
+    wide = Weights(6, {**good.tensors, name: first.astype(np.float64)}, epoch=1)
+    poisoned = Weights(7, {**good.tensors, name: np.full(first.shape, np.nan, np.float32)}, epoch=1)
+    for bad in (missing, reshaped, wide, poisoned):
+        assert not acting.adopt(bad, rejects, "gvf/r/weights")
+    assert rejects.counts == {"weights": 4}
+    assert (acting.version, first_value(acting)) == (3, pytest.approx(0.1))  # the old policy kept
+    with pytest.raises(WireError, match="missing"):
+        acting.load(missing)

@@ -9,7 +9,8 @@ import numpy as np
 
 from common import wire
 from common.transport.inproc import Bus
-from tests.actor_harness import FakeLearner, start_actor as _start
+from tests.actor_harness import FakeLearner
+from tests.actor_harness import start_actor as _start
 from tests.helpers import TINY, compose_run
 
 
@@ -32,7 +33,11 @@ def test_the_actor_loop_sends_consecutive_chunks_ends_episodes_and_stops_at_its_
     assert [(c.episode, c.step0, c.num_steps) for c in car1[:3]] == [(0, 0, 8), (0, 8, 5), (1, 0, 8)]
     assert car1[1].terminated[-1] and not car1[1].terminated[:-1].any() and not car1[0].terminated.any()
     episodes = learner.episodes()
-    assert [(e.env, e.episode, e.steps, e.track) for e in episodes] == [(1, 0, 13, "alder"), (1, 1, 13, "alder"), (1, 2, 13, "alder")]
+    assert [(e.env, e.episode, e.steps, e.track) for e in episodes] == [
+        (1, 0, 13, "alder"),
+        (1, 1, 13, "alder"),
+        (1, 2, 13, "alder"),
+    ]
     assert made["sampler"].steps[made["sampler"].names.index("alder")] > 0  # the sampler heard of each end
 
 
@@ -60,3 +65,21 @@ def test_the_actor_obeys_the_learners_flow_pause_and_a_control_stop():
     thread.join(30)
     assert not thread.is_alive() and stop.is_set()  # the control stop ended the loop
     assert stats["paused_s"] > 0.3
+
+
+def test_weights_that_do_not_fit_and_unknown_roads_are_counted_and_the_actor_drives_on():
+    cfg = compose_run([*TINY, "transport=inproc", "actor.num_envs=2", "actor.chunk_len=8", "actor.max_env_steps=4000"])
+    bus, made = Bus(), {}
+    learner = FakeLearner(cfg, bus)
+    thread, stats = _start(cfg, bus, threading.Event(), made)
+    deadline = time.monotonic() + 30
+    while not learner.chunks_in and time.monotonic() < deadline:
+        time.sleep(0.01)
+    good = wire.decode(learner.t.fetch(learner.keys.weights))
+    name = next(iter(good.tensors))
+    missing = wire.Weights(99, {k: v for k, v in good.tensors.items() if k != name}, epoch=1)
+    learner.t.publisher(learner.keys.weights).put(wire.encode(missing))  # once, it killed an actor
+    learner.t.publisher(learner.keys.tracks).put(wire.encode(wire.TrackTable(1, {"no-such-road": 5})))
+    thread.join(60)
+    assert not thread.is_alive() and stats["env_steps"] == 4000
+    assert stats["rejected"] == 2 and stats["policy_version"] == 3  # the learner's policy kept

@@ -60,8 +60,7 @@ def test_trained_discriminator_recovers_a_known_behaviour_density():
     """
     torch.manual_seed(0)
     g = torch.Generator().manual_seed(0)
-    net = nn.Sequential(nn.Linear(4, 64), nn.ReLU(), nn.Linear(64, 64), nn.ReLU(),
-                        nn.Linear(64, 1))
+    net = nn.Sequential(nn.Linear(4, 64), nn.ReLU(), nn.Linear(64, 64), nn.ReLU(), nn.Linear(64, 1))
 
     def discriminator(last_action, action):
         return net(torch.cat([last_action, action], -1))
@@ -103,7 +102,7 @@ def test_behaviour_network_recovers_a_density_that_depends_on_the_image():
         cols = ((mean[:, 0] + 1) / 2 * 120).long()
         rows = ((mean[:, 1] + 1) / 2 * 56).long()
         for i in range(n):  # a bright square at (speed-mean, steer-mean)
-            image[i, :, rows[i]:rows[i] + 8, cols[i]:cols[i] + 8] = 255
+            image[i, :, rows[i] : rows[i] + 8, cols[i] : cols[i] + 8] = 255
         return image, torch.zeros(n, 1), torch.zeros(n, 2), mean
 
     for step in range(2000):

@@ -11,20 +11,45 @@ from pathlib import Path
 import pytest
 
 ROOT = Path(__file__).resolve().parents[1]
-TINY = ["--seconds", "0.3", "--warmup", "0.1", "--repeats", "1", "--broadcasts", "2", "--window", "32",
-        "scale.buffer_size=1000", "learner.ingest_batch=8"]
+TINY = [
+    "--seconds",
+    "0.3",
+    "--warmup",
+    "0.1",
+    "--repeats",
+    "1",
+    "--broadcasts",
+    "2",
+    "--window",
+    "32",
+    "scale.buffer_size=1000",
+    "learner.ingest_batch=8",
+]
 POSITIVE = [
-    "transitions_per_s", "raw_zenoh_per_s", "ratio", "transitions_per_s_with_rho",
-    "transitions_per_s_flat_out", "weights_payload_bytes",
-    "weights_latency_ms_1", "weights_latency_p90_ms_1", "weights_latency_ms_4", "weights_latency_p90_ms_4",
+    "transitions_per_s",
+    "raw_zenoh_per_s",
+    "ratio",
+    "transitions_per_s_with_rho",
+    "transitions_per_s_flat_out",
+    "weights_payload_bytes",
+    "weights_latency_ms_1",
+    "weights_latency_p90_ms_1",
+    "weights_latency_ms_4",
+    "weights_latency_p90_ms_4",
 ]
 
 
 def test_bench_transport_prints_its_figures_as_json():
     pytest.importorskip("zenoh")
     env = {**os.environ, "OMP_NUM_THREADS": "1", "PYTHONUNBUFFERED": "1"}
-    proc = subprocess.run([sys.executable, str(ROOT / "bench" / "transport.py"), *TINY], cwd=ROOT, env=env,
-                          capture_output=True, text=True, timeout=180)
+    proc = subprocess.run(
+        [sys.executable, str(ROOT / "bench" / "transport.py"), *TINY],
+        cwd=ROOT,
+        env=env,
+        capture_output=True,
+        text=True,
+        timeout=180,
+    )
     assert proc.returncode == 0, proc.stderr[-3000:]
     result = json.loads(proc.stdout.strip().splitlines()[-1])
     for key in POSITIVE:

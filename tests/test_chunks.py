@@ -6,7 +6,8 @@ import torch
 
 from common import wire
 from common.transport.inproc import Bus
-from learner.ingest import SequenceTracker, chunks_to_transitions
+from common.wire_rules import SequenceTracker
+from learner.ingest import chunks_to_transitions
 from learner.replay import compact
 from tests.actor_harness import actor_chunks
 from tests.helpers import TINY, compose_run
@@ -27,7 +28,9 @@ def test_chunks_become_consecutive_transitions_with_next_state_cumulants():
     assert torch.equal(td["next", "image"][:-1], td["image"][1:])
     np.testing.assert_array_equal(td["image"][:, 0, 0, 0].numpy(), np.arange(40))
     np.testing.assert_array_equal(td["next", "image"][:, 0, 0, 0].numpy(), np.arange(1, 41))
-    np.testing.assert_allclose(td["next", "alpha"][:, 0].numpy(), np.arange(1, 41) / 100, rtol=1e-6)  # cumulants of s_t+1
+    np.testing.assert_allclose(
+        td["next", "alpha"][:, 0].numpy(), np.arange(1, 41) / 100, rtol=1e-6
+    )  # cumulants of s_t+1
     np.testing.assert_allclose(td["alpha"][1:, 0].numpy(), td["next", "alpha"][:-1, 0].numpy())
     np.testing.assert_array_equal(td["next", "last_action"].numpy(), td["action"].numpy())
 

@@ -12,7 +12,9 @@ from tests.helpers import compose_run
 GROUPS = sorted(p.name for p in Path(CONF_DIR).iterdir() if p.is_dir() and p.name not in ("experiment",))
 
 
-@pytest.mark.parametrize("override", [f"{g}={f.stem}" for g in GROUPS for f in sorted(Path(CONF_DIR, g).glob("*.yaml"))])
+@pytest.mark.parametrize(
+    "override", [f"{g}={f.stem}" for g in GROUPS for f in sorted(Path(CONF_DIR, g).glob("*.yaml"))]
+)
 def test_every_group_option_composes(override):
     run = compose_run([override])
     assert run.agent.name and run.scale.name and run.env.track
@@ -24,14 +26,23 @@ def test_root_defaults():
     assert run.agent.gammas == [0.0, 0.5, 0.9, 0.95, 0.97]
 
 
-@pytest.mark.parametrize("override, field", [("actor.num_envs=many", "num_envs"), ("env.lane_widht=3", "lane_widht"), ("env.direction=up", "direction")])
+@pytest.mark.parametrize(
+    "override, field",
+    [("actor.num_envs=many", "num_envs"), ("env.lane_widht=3", "lane_widht"), ("env.direction=up", "direction")],
+)
 def test_bad_values_are_refused_naming_the_field(override, field):
     with pytest.raises((ConfigCompositionException, ValidationError, ValueError), match=field):
         compose_run([override])
 
 
-@pytest.mark.parametrize("override, field", [("agent.gvf_terminal=bounce", "gvf_terminal"), ("scale.reward_scale=0", "reward_scale"),
-                                             ("agent.rho_refresh_every=-1", "rho_refresh_every")])
+@pytest.mark.parametrize(
+    "override, field",
+    [
+        ("agent.gvf_terminal=bounce", "gvf_terminal"),
+        ("scale.reward_scale=0", "reward_scale"),
+        ("agent.rho_refresh_every=-1", "rho_refresh_every"),
+    ],
+)
 def test_bad_learning_values_are_refused_naming_the_field(override, field):
     with pytest.raises(ValueError, match=field):
         compose_run([override])
@@ -54,7 +65,13 @@ def test_step_sizes_come_from_the_scale_unless_the_agent_sets_them():
 
     paper = compose_run(["scale=paper"])
     assert step_sizes(paper.agent, paper.scale) == {
-        "discount": 0.99, "target_update": 0.001, "lr_actor": 1e-6, "lr_critic": 1e-4, "lr_gvf": 1e-4, "lr_behaviour": 1e-4}
+        "discount": 0.99,
+        "target_update": 0.001,
+        "lr_actor": 1e-6,
+        "lr_critic": 1e-4,
+        "lr_gvf": 1e-4,
+        "lr_behaviour": 1e-4,
+    }
     small = compose_run(["scale=small"])
     assert step_sizes(small.agent, small.scale)["lr_actor"] == small.scale.lr_actor != 1e-6
     mine = compose_run(["scale=small", "agent.lr_actor=0.5"])
@@ -73,7 +90,10 @@ def test_actor_squash_comes_from_the_scale_unless_the_agent_sets_it():
     assert make_policy(mine.agent, mine.scale).actor.squash == "tanh"
 
 
-@pytest.mark.parametrize("override, field", [("agent.actor_squash=sigmoid", "agent.actor_squash"), ("scale.actor_squash=relu", "scale.actor_squash")])
+@pytest.mark.parametrize(
+    "override, field",
+    [("agent.actor_squash=sigmoid", "agent.actor_squash"), ("scale.actor_squash=relu", "scale.actor_squash")],
+)
 def test_a_bad_actor_squash_is_refused_naming_the_field(override, field):
     with pytest.raises(ValueError, match=field):
         compose_run([override])

@@ -22,10 +22,19 @@ def test_soft_update_moves_targets_by_tau_and_losses_touch_their_own_networks():
     ddpg = make(3, 2, target_update=0.001, lr_actor=1e-2, lr_critic=1e-2)
     params = ddpg.loss_module
     before = {k: v.clone() for k, v in params.target_actor_network_params.items(True, True)}
-    batch = TensorDict({"phi": torch.randn(16, 3), "action": torch.rand(16, 2) * 2 - 1,
-                        "next": {"phi": torch.randn(16, 3), "reward": torch.randn(16, 1),
-                                 "done": torch.zeros(16, 1, dtype=torch.bool),
-                                 "terminated": torch.zeros(16, 1, dtype=torch.bool)}}, [16])
+    batch = TensorDict(
+        {
+            "phi": torch.randn(16, 3),
+            "action": torch.rand(16, 2) * 2 - 1,
+            "next": {
+                "phi": torch.randn(16, 3),
+                "reward": torch.randn(16, 1),
+                "done": torch.zeros(16, 1, dtype=torch.bool),
+                "terminated": torch.zeros(16, 1, dtype=torch.bool),
+            },
+        },
+        [16],
+    )
     ddpg.zero_grad()
     _, out = ddpg.loss(batch)
     out["loss_actor"].backward()
@@ -53,10 +62,21 @@ def test_ddpg_solves_a_contextual_bandit():
         s = torch.rand(128, 3, generator=g) * 2 - 1
         a = torch.rand(128, 2, generator=g) * 2 - 1  # uniform behaviour: off-policy
         r = -((a - optimum(s)) ** 2).sum(-1, keepdim=True)
-        ddpg.update(TensorDict({
-            "phi": s, "action": a,
-            "next": {"phi": s, "reward": r, "done": torch.ones(128, 1, dtype=torch.bool),
-                     "terminated": torch.ones(128, 1, dtype=torch.bool)}}, [128]))
+        ddpg.update(
+            TensorDict(
+                {
+                    "phi": s,
+                    "action": a,
+                    "next": {
+                        "phi": s,
+                        "reward": r,
+                        "done": torch.ones(128, 1, dtype=torch.bool),
+                        "terminated": torch.ones(128, 1, dtype=torch.bool),
+                    },
+                },
+                [128],
+            )
+        )
     s = torch.rand(2000, 3, generator=g) * 2 - 1
     with torch.no_grad():
         error = (ddpg.actor(s) - optimum(s)).abs().mean()
@@ -86,20 +106,40 @@ def test_ddpg_learns_pendulum_from_low_dim_state():
             action = rng.uniform(-1, 1, 1).astype(np.float32)
         action = np.clip(action + noise.sample()[0], -1, 1)
         next_obs, reward, terminated, truncated, _ = env.step(2.0 * action)
-        replay.extend(TensorDict({
-            "phi": torch.as_tensor(obs)[None], "action": torch.as_tensor(action)[None],
-            "next_phi": torch.as_tensor(next_obs)[None],
-            "reward": torch.tensor([[reward / 10.0]], dtype=torch.float32),
-            "terminated": torch.tensor([[terminated]]), "rho": torch.ones(1, 1)}, [1]))
+        replay.extend(
+            TensorDict(
+                {
+                    "phi": torch.as_tensor(obs)[None],
+                    "action": torch.as_tensor(action)[None],
+                    "next_phi": torch.as_tensor(next_obs)[None],
+                    "reward": torch.tensor([[reward / 10.0]], dtype=torch.float32),
+                    "terminated": torch.tensor([[terminated]]),
+                    "rho": torch.ones(1, 1),
+                },
+                [1],
+            )
+        )
         obs = next_obs
         if terminated or truncated:
             obs, _ = env.reset()
             noise.reset()
         if step >= 1000:
             b = replay.sample_uniform(128)
-            ddpg.update(TensorDict({"phi": b["phi"], "action": b["action"], "next": {
-                "phi": b["next_phi"], "reward": b["reward"], "done": b["terminated"],
-                "terminated": b["terminated"]}}, [128]))
+            ddpg.update(
+                TensorDict(
+                    {
+                        "phi": b["phi"],
+                        "action": b["action"],
+                        "next": {
+                            "phi": b["next_phi"],
+                            "reward": b["reward"],
+                            "done": b["terminated"],
+                            "terminated": b["terminated"],
+                        },
+                    },
+                    [128],
+                )
+            )
     returns = []
     for episode in range(5):
         obs, _ = env.reset(seed=100 + episode)

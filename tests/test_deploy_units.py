@@ -17,11 +17,10 @@ import pytest
 import yaml
 from omegaconf import open_dict
 
-
-from tests.deploy_helpers import free_port, patched, certs, REPO, DEPLOY, UNITS, CONSOLE_SCRIPTS, PY  # noqa: F401  (certs is a fixture)
-
+from tests.deploy_helpers import CONSOLE_SCRIPTS, DEPLOY, PY, REPO, UNITS, certs, free_port, patched  # noqa: F401  (certs is a fixture)
 
 # --- systemd units ----------------------------------------------------------------------------
+
 
 def parse_unit(path: Path) -> dict[str, dict[str, list[str]]]:
     """systemd unit file -> {section: {key: [values]}}, continuation lines joined."""
@@ -63,8 +62,11 @@ def expand(command: str, env: dict[str, str], instance: str = "3") -> list[str]:
     return argv
 
 
-UNIT_SCRIPTS = {"gvf-router.service": "gvf-router", "gvf-learner.service": "gvf-learner",
-                "gvf-actor@.service": "gvf-actor"}
+UNIT_SCRIPTS = {
+    "gvf-router.service": "gvf-router",
+    "gvf-learner.service": "gvf-learner",
+    "gvf-actor@.service": "gvf-actor",
+}
 
 
 def test_the_units_and_env_example_exist():
@@ -128,8 +130,11 @@ def test_unit_command_line_composes_with_the_run_config(name):
     register()
     with initialize_config_dir(config_dir=CONF_DIR, version_base="1.3"):
         cfg = compose("config", overrides=overrides, return_hydra_config=True)
-    assert cfg.hydra.run.dir == f"{env['OUTPUT_DIR']}/{env['RUN']}/" + {
-        "gvf-router.service": "router", "gvf-learner.service": "learner", "gvf-actor@.service": "actor-3"}[name]
+    assert (
+        cfg.hydra.run.dir
+        == f"{env['OUTPUT_DIR']}/{env['RUN']}/"
+        + {"gvf-router.service": "router", "gvf-learner.service": "learner", "gvf-actor@.service": "actor-3"}[name]
+    )
     with open_dict(cfg):
         del cfg["hydra"]
     run, _, _ = to_objects(cfg)
@@ -150,12 +155,17 @@ def test_unit_command_line_composes_with_the_run_config(name):
 def test_systemd_analyze_verify(tmp_path):
     for path in UNITS.glob("*.service"):
         shutil.copy(path, tmp_path)
-    units = [str(tmp_path / "gvf-router.service"), str(tmp_path / "gvf-learner.service"),
-             str(tmp_path / "gvf-actor@3.service")]
-    out = subprocess.run(["systemd-analyze", "verify", "--man=no", *units],
-                         capture_output=True, text=True, timeout=60)
-    problems = [line for line in (out.stdout + out.stderr).splitlines()
-                if str(tmp_path) in line and not re.search(r"Unknown key '(RestartSteps|RestartMaxDelaySec)'", line)]
+    units = [
+        str(tmp_path / "gvf-router.service"),
+        str(tmp_path / "gvf-learner.service"),
+        str(tmp_path / "gvf-actor@3.service"),
+    ]
+    out = subprocess.run(["systemd-analyze", "verify", "--man=no", *units], capture_output=True, text=True, timeout=60)
+    problems = [
+        line
+        for line in (out.stdout + out.stderr).splitlines()
+        if str(tmp_path) in line and not re.search(r"Unknown key '(RestartSteps|RestartMaxDelaySec)'", line)
+    ]
     assert not problems, "\n".join(problems)
 
 
@@ -182,25 +192,48 @@ def test_sbatch_script_runs_one_named_actor_and_restarts_it(tmp_path):
     """actors.sbatch with a stand-in `srun` that records its arguments and fails once."""
     stub = tmp_path / "bin" / "srun"
     stub.parent.mkdir()
-    stub.write_text('#!/usr/bin/env bash\n'
-                    'n=$(($(cat "$CALLS" 2>/dev/null || echo 0) + 1)); echo $n > "$CALLS"\n'
-                    'printf "%s\\n" "$@" > "$ARGS"\n'
-                    '[ "$n" -gt 1 ]\n')
+    stub.write_text(
+        "#!/usr/bin/env bash\n"
+        'n=$(($(cat "$CALLS" 2>/dev/null || echo 0) + 1)); echo $n > "$CALLS"\n'
+        'printf "%s\\n" "$@" > "$ARGS"\n'
+        '[ "$n" -gt 1 ]\n'
+    )
     stub.chmod(0o755)
-    env = {**os.environ, "PATH": f"{stub.parent}:{os.environ['PATH']}", "CALLS": str(tmp_path / "calls"),
-           "ARGS": str(tmp_path / "args"), "SLURM_ARRAY_TASK_ID": "5", "SLURM_CPUS_PER_TASK": "4",
-           "ROUTER": "tls/router.example.org:7447", "RUN": "exp1", "VENV": "/opt/gvf/venv",
-           "ZENOH_CONFIG": "/etc/gvf/zenoh/client-tls.json5", "RUN_ARGS": "agent=gvf_ddpg scale=paper",
-           "RESTART_BACKOFF_S": "1"}
-    out = subprocess.run(["bash", str(DEPLOY / "slurm" / "actors.sbatch")], env=env, cwd=tmp_path,
-                         capture_output=True, text=True, timeout=60)
+    env = {
+        **os.environ,
+        "PATH": f"{stub.parent}:{os.environ['PATH']}",
+        "CALLS": str(tmp_path / "calls"),
+        "ARGS": str(tmp_path / "args"),
+        "SLURM_ARRAY_TASK_ID": "5",
+        "SLURM_CPUS_PER_TASK": "4",
+        "ROUTER": "tls/router.example.org:7447",
+        "RUN": "exp1",
+        "VENV": "/opt/gvf/venv",
+        "ZENOH_CONFIG": "/etc/gvf/zenoh/client-tls.json5",
+        "RUN_ARGS": "agent=gvf_ddpg scale=paper",
+        "RESTART_BACKOFF_S": "1",
+    }
+    out = subprocess.run(
+        ["bash", str(DEPLOY / "slurm" / "actors.sbatch")],
+        env=env,
+        cwd=tmp_path,
+        capture_output=True,
+        text=True,
+        timeout=60,
+    )
     assert out.returncode == 0, out.stderr
     assert (tmp_path / "calls").read_text().strip() == "2"  # failed once, restarted, then stopped
     argv = (tmp_path / "args").read_text().splitlines()
     assert argv[:3] == ["--ntasks=1", "--cpus-per-task=4", "/opt/gvf/venv/bin/gvf-actor"]
-    for override in ("run=exp1", "transport.connect=[tls/router.example.org:7447]", "actor.name=actor-5",
-                     "actor.seed=5", "transport.zenoh_config_file=/etc/gvf/zenoh/client-tls.json5",
-                     "agent=gvf_ddpg", "scale=paper"):
+    for override in (
+        "run=exp1",
+        "transport.connect=[tls/router.example.org:7447]",
+        "actor.name=actor-5",
+        "actor.seed=5",
+        "transport.zenoh_config_file=/etc/gvf/zenoh/client-tls.json5",
+        "agent=gvf_ddpg",
+        "scale=paper",
+    ):
         assert override in argv
 
 
@@ -209,7 +242,9 @@ def test_slurm_launcher_config():
     assert (DEPLOY / "slurm" / "actors.yaml").read_text().startswith("# @package _global_")
     assert {"override /hydra/launcher": "submitit_slurm"} in data["defaults"]
     launcher = data["hydra"]["launcher"]
-    assert {"partition", "cpus_per_task", "timeout_min", "array_parallelism", "max_num_timeout", "name"} <= set(launcher)
+    assert {"partition", "cpus_per_task", "timeout_min", "array_parallelism", "max_num_timeout", "name"} <= set(
+        launcher
+    )
     assert launcher["array_parallelism"] >= 64  # actors never finish: all must run at once
     assert data["hydra"]["sweeper"]["params"]["actor.seed"].startswith("range(")
 
@@ -224,6 +259,7 @@ def test_slurm_config_composes_one_actor_per_seed(tmp_path):
     search = DEPLOY
     try:
         import hydra_plugins.hydra_submitit_launcher  # noqa: F401
+
         with_launcher = True
     except ImportError:
         # without the plugin, compose the job's part: drop the launcher selection and settings
@@ -236,9 +272,17 @@ def test_slurm_config_composes_one_actor_per_seed(tmp_path):
         search = tmp_path
     register()
     with initialize_config_dir(config_dir=CONF_DIR, version_base="1.3"):
-        cfg = compose("config", overrides=[f"hydra.searchpath=[file://{search}]", "+slurm=actors", "actor.seed=7",
-                                           "transport.connect=[tcp/router.example.org:7447]", "run=exp1"],
-                      return_hydra_config=True)
+        cfg = compose(
+            "config",
+            overrides=[
+                f"hydra.searchpath=[file://{search}]",
+                "+slurm=actors",
+                "actor.seed=7",
+                "transport.connect=[tcp/router.example.org:7447]",
+                "run=exp1",
+            ],
+            return_hydra_config=True,
+        )
     assert str(cfg.hydra.mode).endswith("MULTIRUN")
     if with_launcher:
         assert cfg.hydra.launcher._target_.endswith("SlurmLauncher") and cfg.hydra.launcher.name == "gvf-actor-exp1"
@@ -251,6 +295,7 @@ def test_slurm_config_composes_one_actor_per_seed(tmp_path):
 
 # --- the guide --------------------------------------------------------------------------------
 
+
 def test_readme_names_only_real_files_and_commands():
     text = (DEPLOY / "README.md").read_text()
     for path in set(re.findall(r"\bdeploy/[\w./@-]*\w", text)):
@@ -261,12 +306,23 @@ def test_readme_names_only_real_files_and_commands():
     assert programs <= CONSOLE_SCRIPTS, programs - CONSOLE_SCRIPTS
     subcommands = set(re.findall(r"gvfctl\.py (\w+)", text))
     assert subcommands <= {"ping", "alive", "stop", "pause", "resume", "router"}, subcommands
-    for section in ("Topology", "Firewall", "Start each role by hand", "With systemd", "With SLURM", "With TLS",
-                    "Check that it works", "Stop", "Resume the learner", "Try it on one machine with network namespaces"):
+    for section in (
+        "Topology",
+        "Firewall",
+        "Start each role by hand",
+        "With systemd",
+        "With SLURM",
+        "With TLS",
+        "Check that it works",
+        "Stop",
+        "Resume the learner",
+        "Try it on one machine with network namespaces",
+    ):
         assert section in text, section
 
 
 # --- opt-in: namespaces (root) and the units' command lines run for real ------------------------
+
 
 def _root_and_ip() -> str | None:
     if os.geteuid() != 0:
@@ -286,25 +342,78 @@ def test_netns_recipe_round_trip():
     router = None
     try:
         subprocess.run(["bash", netns, "up", prefix], check=True, capture_output=True, timeout=60)
-        router = subprocess.Popen(["ip", "netns", "exec", f"{prefix}-r", PY, str(DEPLOY / "gvfctl.py"), "router",
-                                   "--listen", "tcp/192.0.2.1:7447"], stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+        router = subprocess.Popen(
+            [
+                "ip",
+                "netns",
+                "exec",
+                f"{prefix}-r",
+                PY,
+                str(DEPLOY / "gvfctl.py"),
+                "router",
+                "--listen",
+                "tcp/192.0.2.1:7447",
+            ],
+            stdout=subprocess.DEVNULL,
+            stderr=subprocess.DEVNULL,
+        )
         time.sleep(1.0)
-        holder = subprocess.Popen(["ip", "netns", "exec", f"{prefix}-a", PY, "-c",
-                                   "import sys, zenoh; from common.config.transport import TransportConfig as T;"
-                                   "from common.transport.zenoh_backend import zenoh_config as z;"
-                                   "s = zenoh.open(z(T(connect=['tcp/192.0.2.1:7447'])));"
-                                   "t = s.liveliness().declare_token('gvf/netns/alive/actor/a0');"
-                                   "print('up', flush=True); sys.stdin.read(); s.close()"],
-                                  stdin=subprocess.PIPE, stdout=subprocess.PIPE, text=True)
+        holder = subprocess.Popen(
+            [
+                "ip",
+                "netns",
+                "exec",
+                f"{prefix}-a",
+                PY,
+                "-c",
+                "import sys, zenoh; from common.config.transport import TransportConfig as T;"
+                "from common.transport.zenoh_backend import zenoh_config as z;"
+                "s = zenoh.open(z(T(connect=['tcp/192.0.2.1:7447'])));"
+                "t = s.liveliness().declare_token('gvf/netns/alive/actor/a0');"
+                "print('up', flush=True); sys.stdin.read(); s.close()",
+            ],
+            stdin=subprocess.PIPE,
+            stdout=subprocess.PIPE,
+            text=True,
+        )
         try:
             assert holder.stdout.readline().strip() == "up"
             for ns in ("l", "a"):
-                out = subprocess.run(["ip", "netns", "exec", f"{prefix}-{ns}", PY, str(DEPLOY / "gvfctl.py"), "ping",
-                                      "--connect", "tcp/192.0.2.1:7447"], capture_output=True, text=True, timeout=60)
+                out = subprocess.run(
+                    [
+                        "ip",
+                        "netns",
+                        "exec",
+                        f"{prefix}-{ns}",
+                        PY,
+                        str(DEPLOY / "gvfctl.py"),
+                        "ping",
+                        "--connect",
+                        "tcp/192.0.2.1:7447",
+                    ],
+                    capture_output=True,
+                    text=True,
+                    timeout=60,
+                )
                 assert out.returncode == 0, out.stderr
-            out = subprocess.run(["ip", "netns", "exec", f"{prefix}-l", PY, str(DEPLOY / "gvfctl.py"), "alive",
-                                  "--connect", "tcp/192.0.2.1:7447", "--run", "netns"],
-                                 capture_output=True, text=True, timeout=60)
+            out = subprocess.run(
+                [
+                    "ip",
+                    "netns",
+                    "exec",
+                    f"{prefix}-l",
+                    PY,
+                    str(DEPLOY / "gvfctl.py"),
+                    "alive",
+                    "--connect",
+                    "tcp/192.0.2.1:7447",
+                    "--run",
+                    "netns",
+                ],
+                capture_output=True,
+                text=True,
+                timeout=60,
+            )
             assert "gvf/netns/alive/actor/a0" in out.stdout.split()
         finally:
             holder.communicate("", timeout=20)
@@ -321,23 +430,33 @@ def test_netns_recipe_round_trip():
 
 def _run_unit(name: str, env: dict[str, str], log: Path, instance: str = "3") -> subprocess.Popen:
     argv = expand(parse_unit(UNITS / name)["Service"]["ExecStart"][0], env, instance)
-    return subprocess.Popen(argv, env={**os.environ, **env, "OMP_NUM_THREADS": "1", "PYTHONUNBUFFERED": "1"},
-                            stdout=open(log, "wb"), stderr=subprocess.STDOUT)
+    return subprocess.Popen(
+        argv,
+        env={**os.environ, **env, "OMP_NUM_THREADS": "1", "PYTHONUNBUFFERED": "1"},
+        stdout=open(log, "wb"),
+        stderr=subprocess.STDOUT,
+    )
 
 
 @pytest.mark.slow
 def test_unit_command_lines_run_over_mutual_tls(certs, tmp_path):
     """ExecStart of the three units, expanded as systemd would, run a router, a learner and an actor."""
     port = free_port()
-    env = {**parse_env(UNITS / "gvf.env.example"),
-           "VENV": str(Path(PY).parent.parent), "RUN": "unitcheck", "OUTPUT_DIR": str(tmp_path / "out"),
-           "ROUTER": f"tls/127.0.0.1:{port}", "ROUTER_LISTEN": f"tls/127.0.0.1:{port}",
-           "ROUTER_ZENOH_CONFIG": str(patched("router-tls.json5", certs, tmp_path)),
-           "CLIENT_ZENOH_CONFIG": str(patched("client-tls.json5", certs, tmp_path)),
-           "CHECKPOINT_DIR": str(tmp_path / "ckpt"), "NUM_ENVS": "2",
-           "RUN_ARGS": "scale=small scale.warmup=64 scale.batch_size=32 scale.buffer_size=5000",
-           "LEARNER_ARGS": "learner.device=cpu learner.publish_every=5 learner.samples_per_insert=4",
-           "ACTOR_ARGS": "actor.chunk_len=16"}
+    env = {
+        **parse_env(UNITS / "gvf.env.example"),
+        "VENV": str(Path(PY).parent.parent),
+        "RUN": "unitcheck",
+        "OUTPUT_DIR": str(tmp_path / "out"),
+        "ROUTER": f"tls/127.0.0.1:{port}",
+        "ROUTER_LISTEN": f"tls/127.0.0.1:{port}",
+        "ROUTER_ZENOH_CONFIG": str(patched("router-tls.json5", certs, tmp_path)),
+        "CLIENT_ZENOH_CONFIG": str(patched("client-tls.json5", certs, tmp_path)),
+        "CHECKPOINT_DIR": str(tmp_path / "ckpt"),
+        "NUM_ENVS": "2",
+        "RUN_ARGS": "scale=small scale.warmup=64 scale.batch_size=32 scale.buffer_size=5000",
+        "LEARNER_ARGS": "learner.device=cpu learner.publish_every=5 learner.samples_per_insert=4",
+        "ACTOR_ARGS": "actor.chunk_len=16",
+    }
     procs = []
     try:
         procs.append(_run_unit("gvf-router.service", env, tmp_path / "router.log"))

@@ -17,11 +17,21 @@ import zenoh
 
 from common.config.transport import TransportConfig
 from common.keys import Keys
-from common.wire import Control, decode
 from common.transport.zenoh_backend import open_router, zenoh_config
-
-from tests.deploy_helpers import free_port, patched, router_process, client, round_trip, refused, gvfctl, certs, DEPLOY, ZENOH_DIR, PY  # noqa: F401  (certs is a fixture)
-
+from common.wire import Control, decode
+from tests.deploy_helpers import (  # noqa: F401  (certs is a fixture)
+    DEPLOY,
+    PY,
+    ZENOH_DIR,
+    certs,
+    client,
+    free_port,
+    gvfctl,
+    patched,
+    refused,
+    round_trip,
+    router_process,
+)
 
 # --- Zenoh configs ----------------------------------------------------------------------------
 
@@ -52,9 +62,16 @@ def test_json5_loads_in_zenoh_and_through_the_transport_config(name, tmp_path):
 
 
 def test_tls_configs_name_every_certificate(certs, tmp_path):
-    for name, keys in {"router-tls.json5": ("root_ca_certificate", "listen_private_key", "listen_certificate",
-                                            "connect_private_key", "connect_certificate"),
-                       "client-tls.json5": ("root_ca_certificate", "connect_private_key", "connect_certificate")}.items():
+    for name, keys in {
+        "router-tls.json5": (
+            "root_ca_certificate",
+            "listen_private_key",
+            "listen_certificate",
+            "connect_private_key",
+            "connect_certificate",
+        ),
+        "client-tls.json5": ("root_ca_certificate", "connect_private_key", "connect_certificate"),
+    }.items():
         conf = zenoh.Config.from_file(str(patched(name, certs, tmp_path)))
         tls = json.loads(conf.get_json("transport/link/tls"))
         assert tls["enable_mtls"] is True and tls["verify_name_on_connect"] is True
@@ -64,6 +81,7 @@ def test_tls_configs_name_every_certificate(certs, tmp_path):
 
 
 # --- TLS on loopback --------------------------------------------------------------------------
+
 
 def test_mutual_tls_round_trip_and_what_it_refuses(certs, tmp_path):
     router_conf = patched("router-tls.json5", certs, tmp_path)
@@ -94,8 +112,10 @@ def test_server_side_tls_round_trip(certs, tmp_path):
 
 
 def test_tls_router_refuses_a_plain_tcp_listen_endpoint(certs, tmp_path):
-    cfg = TransportConfig(zenoh_config_file=str(patched("router-tls.json5", certs, tmp_path)),
-                          router_listen=[f"tcp/127.0.0.1:{free_port()}"])
+    cfg = TransportConfig(
+        zenoh_config_file=str(patched("router-tls.json5", certs, tmp_path)),
+        router_listen=[f"tcp/127.0.0.1:{free_port()}"],
+    )
     with pytest.raises(zenoh.ZError, match="(?i)protocol"):
         open_router(cfg).close()
 
@@ -105,14 +125,22 @@ def test_make_test_certs_names_and_reuses_the_ca(tmp_path):
         pytest.skip("openssl not installed")
     out = tmp_path / "c"
     script = str(DEPLOY / "make_test_certs.sh")
-    subprocess.run(["bash", script, str(out), "router.example.org", "192.0.2.1"], check=True, capture_output=True, timeout=60)
+    subprocess.run(
+        ["bash", script, str(out), "router.example.org", "192.0.2.1"], check=True, capture_output=True, timeout=60
+    )
     ca = (out / "ca.pem").read_bytes()
-    san = subprocess.run(["openssl", "x509", "-in", str(out / "router.pem"), "-noout", "-ext", "subjectAltName"],
-                         check=True, capture_output=True, text=True).stdout
+    san = subprocess.run(
+        ["openssl", "x509", "-in", str(out / "router.pem"), "-noout", "-ext", "subjectAltName"],
+        check=True,
+        capture_output=True,
+        text=True,
+    ).stdout
     for name in ("DNS:localhost", "IP Address:127.0.0.1", "DNS:router.example.org", "IP Address:192.0.2.1"):
         assert name in san
     for cert in ("router.pem", "client.pem"):
-        subprocess.run(["openssl", "verify", "-CAfile", str(out / "ca.pem"), str(out / cert)], check=True, capture_output=True)
+        subprocess.run(
+            ["openssl", "verify", "-CAfile", str(out / "ca.pem"), str(out / cert)], check=True, capture_output=True
+        )
     assert stat.S_IMODE((out / "client.key").stat().st_mode) == 0o600
     subprocess.run(["bash", script, str(out)], check=True, capture_output=True, timeout=60)
     assert (out / "ca.pem").read_bytes() == ca  # the CA is kept: old clients trust new certificates
@@ -122,14 +150,18 @@ def test_make_test_certs_names_and_reuses_the_ca(tmp_path):
 
 # --- gvfctl against a plain TCP router --------------------------------------------------------
 
+
 def test_gvfctl_ping_alive_and_stop(tmp_path):
     port = free_port()
     endpoint = f"tcp/127.0.0.1:{port}"
     keys = Keys("deploytest")
     with router_process(ZENOH_DIR / "router.json5", [endpoint]):
         assert gvfctl("ping", "--connect", endpoint).returncode == 0
-        watch = subprocess.Popen([PY, str(DEPLOY / "gvfctl.py"), "alive", "--watch", "--connect", endpoint,
-                                  "--run", "deploytest"], stdout=subprocess.PIPE, text=True)
+        watch = subprocess.Popen(
+            [PY, str(DEPLOY / "gvfctl.py"), "alive", "--watch", "--connect", endpoint, "--run", "deploytest"],
+            stdout=subprocess.PIPE,
+            text=True,
+        )
         lines: queue.Queue[str] = queue.Queue()
         threading.Thread(target=lambda: [lines.put(line) for line in watch.stdout], daemon=True).start()
         try:
@@ -153,5 +185,3 @@ def test_gvfctl_ping_alive_and_stop(tmp_path):
         assert gvfctl("alive", "--connect", endpoint, "--run", "deploytest", "--timeout", "1").returncode == 1
         assert gvfctl("stop", "--connect", endpoint, "--run", "deploytest", "--timeout", "0.5").returncode == 1
     assert gvfctl("ping", "--connect", endpoint, "--timeout", "1").returncode == 1  # router gone
-
-

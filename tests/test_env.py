@@ -177,7 +177,13 @@ def test_rgb_array_render():
 
 @pytest.mark.parametrize(
     "kwargs, field",
-    [({"direction": "up"}, "direction"), ({"camera_height": 5.0}, "camera_height"), ({"lane_width": 50.0}, "lane_width"), ({"speed": 3}, "speed"), ({"damage": {"gap_fraction": 2.0}}, "gap_fraction")],
+    [
+        ({"direction": "up"}, "direction"),
+        ({"camera_height": 5.0}, "camera_height"),
+        ({"lane_width": 50.0}, "lane_width"),
+        ({"speed": 3}, "speed"),
+        ({"damage": {"gap_fraction": 2.0}}, "gap_fraction"),
+    ],
 )
 def test_bad_config_is_refused_naming_the_field(kwargs, field):
     with pytest.raises((ValueError, TypeError), match=field):

@@ -24,7 +24,12 @@ def gvf_eval(*args, cwd):
 def test_drives_run_together_give_what_each_gives_alone():
     together = evaluate(kinematic_policy(), tracks=["sage", "brook"])
     alone = [r for name in ("sage", "brook") for r in evaluate(kinematic_policy(), tracks=[name])]
-    assert [(r["track"], r["direction"]) for r in together] == [("sage", "ccw"), ("sage-r", "cw"), ("brook", "ccw"), ("brook-r", "cw")]
+    assert [(r["track"], r["direction"]) for r in together] == [
+        ("sage", "ccw"),
+        ("sage-r", "cw"),
+        ("brook", "ccw"),
+        ("brook-r", "cw"),
+    ]
     for a, b in zip(together, alone):
         assert a["metrics"] == b["metrics"] and a["metrics"]["lap_completed"] == 1.0
         assert all(np.array_equal(a["trace"][k], b["trace"][k]) for k in a["trace"])
@@ -47,7 +52,11 @@ def test_validation_selection_never_evaluates_a_test_road(monkeypatch):
 
     driven = []
     real = periodic.evaluate
-    monkeypatch.setattr(periodic, "evaluate", lambda policy, *a, tracks=None, **kw: (driven.append(list(tracks)), real(policy, *a, tracks=tracks, **kw))[1])
+    monkeypatch.setattr(
+        periodic,
+        "evaluate",
+        lambda policy, *a, tracks=None, **kw: (driven.append(list(tracks)), real(policy, *a, tracks=tracks, **kw))[1],
+    )
     cfg = RunConfig()
     cfg.eval.validation_tracks = cfg.eval.validation_tracks[:2]
     mean = periodic.validate(kinematic_policy(), cfg)
@@ -63,7 +72,9 @@ def test_kinematic_controller_laps_every_test_road_with_no_near_out_of_lane(tmp_
     stdout = gvf_eval("policy=kinematic", "eval.video=true", f"hydra.run.dir={tmp_path}", cwd=tmp_path)
     report = json.loads((tmp_path / "eval.json").read_text())
     assert len(report["drives"]) == 12  # 6 test roads x 2 directions
-    assert all(d["metrics"]["lap_completed"] == 1.0 and d["metrics"]["near_out_of_lane"] == 0.0 for d in report["drives"])
+    assert all(
+        d["metrics"]["lap_completed"] == 1.0 and d["metrics"]["near_out_of_lane"] == 0.0 for d in report["drives"]
+    )
     assert "Near out of lane" in stdout and "| **mean** |" in (tmp_path / "eval.md").read_text()
     assert all((tmp_path / f).stat().st_size > 1000 for f in FIGURES)
     import imageio.v3 as iio
@@ -74,16 +85,35 @@ def test_kinematic_controller_laps_every_test_road_with_no_near_out_of_lane(tmp_
 
 def test_short_training_then_eval_and_comparison_of_its_checkpoint_write_tables_figures_and_curves(tmp_path):
     run_dir = tmp_path / "run"
-    cfg = compose_run([*TINY, "transport=inproc", "progress=false", "actors.count=1", "max_seconds=60", "learner.max_updates=40", "eval.every_updates=20", "eval.directions=[ccw]"])
+    cfg = compose_run(
+        [
+            *TINY,
+            "transport=inproc",
+            "progress=false",
+            "actors.count=1",
+            "max_seconds=60",
+            "learner.max_updates=40",
+            "eval.every_updates=20",
+            "eval.directions=[ccw]",
+        ]
+    )
     stop = threading.Event()
     train(cfg, str(run_dir), stop)
     lines = [json.loads(x) for x in (run_dir / "eval.jsonl").read_text().splitlines()]
     assert lines and lines[0]["updates"] >= 20 and len(lines[0]["drives"]) == 6  # periodic evaluation ran
-    best = max(lines, key=lambda x: (x["validation"]["lap_completed"], x["validation"]["reward_per_s"]))  # chosen on validation
+    best = max(
+        lines, key=lambda x: (x["validation"]["lap_completed"], x["validation"]["reward_per_s"])
+    )  # chosen on validation
     _, meta = checkpoint_policy(run_dir / "checkpoints" / "best-policy.pt")
     assert meta["updates"] == best["updates"] and meta["agent"] == "gvf_ddpg"  # the best evaluation's policy is kept
     out = tmp_path / "eval"
-    gvf_eval(f"checkpoint={run_dir}/checkpoints", f"eval.runs={run_dir}", "eval.directions=[ccw]", f"hydra.run.dir={out}", cwd=tmp_path)
+    gvf_eval(
+        f"checkpoint={run_dir}/checkpoints",
+        f"eval.runs={run_dir}",
+        "eval.directions=[ccw]",
+        f"hydra.run.dir={out}",
+        cwd=tmp_path,
+    )
     report = json.loads((out / "eval.json").read_text())
     assert report["title"].startswith("gvf_ddpg after") and len(report["drives"]) == 6
     assert "Reward /s" in (out / "eval.md").read_text()

@@ -19,7 +19,7 @@ def test_stationary_std_and_autocorrelation_match_theory():
     corr = float(np.corrcoef(x0.ravel(), x50.ravel())[0, 1])
     # 4000 samples: std of the std estimate ~1.1%, of the correlation ~0.01
     assert abs(std - 0.1 / np.sqrt(2.0)) < 0.004, std
-    assert abs(corr - 0.99 ** 50) < 0.04, corr
+    assert abs(corr - 0.99**50) < 0.04, corr
     assert abs(x0.mean()) < 0.005
 
 

@@ -43,7 +43,11 @@ class Run:
         self.procs = {}
 
     def router(self):
-        self.procs["router"] = script("gvf-router", [f"transport.router_listen=[{self.endpoint}]", f"hydra.run.dir={self.tmp}/router"], self.tmp / "router.log")
+        self.procs["router"] = script(
+            "gvf-router",
+            [f"transport.router_listen=[{self.endpoint}]", f"hydra.run.dir={self.tmp}/router"],
+            self.tmp / "router.log",
+        )
         time.sleep(1.0)
 
     def learner(self, *extra, name="learner"):
@@ -66,17 +70,31 @@ class Run:
         return self.tmp / "learner" / "progress.json"
 
     def close(self):
-        for name in [n for n in self.procs if n.startswith("actor")] + [n for n in self.procs if not n.startswith("actor")]:
+        for name in [n for n in self.procs if n.startswith("actor")] + [
+            n for n in self.procs if not n.startswith("actor")
+        ]:
             stop(self.procs[name])
 
 
 def valid_chunk_map(actor="evil", steps=4):
     rng = np.random.default_rng(0)
     chunk = wire.TransitionChunk(
-        actor=actor, env=0, episode=0, seq=0, policy_version=0, step0=0,
-        frames=rng.integers(0, 255, (steps + 2, 64, 128), dtype=np.uint8), speed=np.full((steps + 1, 1), 0.5, np.float32),
-        last_action=np.zeros((steps + 1, 2), np.float32), action=np.zeros((steps, 2), np.float32), reward=np.zeros(steps, np.float32),
-        terminated=np.zeros(steps, bool), truncated=np.zeros(steps, bool), alpha=np.zeros(steps + 1, np.float32), beta=np.zeros(steps + 1, np.float32))
+        actor=actor,
+        env=0,
+        episode=0,
+        seq=0,
+        policy_version=0,
+        step0=0,
+        frames=rng.integers(0, 255, (steps + 2, 64, 128), dtype=np.uint8),
+        speed=np.full((steps + 1, 1), 0.5, np.float32),
+        last_action=np.zeros((steps + 1, 2), np.float32),
+        action=np.zeros((steps, 2), np.float32),
+        reward=np.zeros(steps, np.float32),
+        terminated=np.zeros(steps, bool),
+        truncated=np.zeros(steps, bool),
+        alpha=np.zeros(steps + 1, np.float32),
+        beta=np.zeros(steps + 1, np.float32),
+    )
     return msgpack.unpackb(wire.encode(chunk), raw=False)
 
 
@@ -92,7 +110,13 @@ def hostile_payloads():
     nan["reward"]["data"] = reward.tobytes()
     big = valid_chunk_map()
     big["frames"]["data"] = bytes(20 * 1024 * 1024)  # over the learner's 16 MiB chunk limit
-    return {"decode": b"\x93garbage\xff\x00", "version": pack(version), "shape": pack(shape), "nonfinite": pack(nan), "size": pack(big)}
+    return {
+        "decode": b"\x93garbage\xff\x00",
+        "version": pack(version),
+        "shape": pack(shape),
+        "nonfinite": pack(nan),
+        "size": pack(big),
+    }
 
 
 def test_hostile_messages_are_counted_and_dropped_while_training_goes_on(tmp_path):
@@ -102,17 +126,34 @@ def test_hostile_messages_are_counted_and_dropped_while_training_goes_on(tmp_pat
     try:
         run.start()
         before = read_json(run.progress)["updates"]
-        conf = zenoh.Config.from_json5(json.dumps({"mode": "client", "connect": {"endpoints": [run.endpoint]}, "scouting": {"multicast": {"enabled": False}}}))
+        conf = zenoh.Config.from_json5(
+            json.dumps(
+                {
+                    "mode": "client",
+                    "connect": {"endpoints": [run.endpoint]},
+                    "scouting": {"multicast": {"enabled": False}},
+                }
+            )
+        )
         with zenoh.open(conf) as session:
-            pub = session.declare_publisher("gvf/faults/transitions/evil", congestion_control=zenoh.CongestionControl.BLOCK)
+            pub = session.declare_publisher(
+                "gvf/faults/transitions/evil", congestion_control=zenoh.CongestionControl.BLOCK
+            )
             deadline, p = time.monotonic() + 60, {}
-            while time.monotonic() < deadline and not all(p.get("rejected_by_kind", {}).get(k, 0) >= 1 for k in hostile):
+            while time.monotonic() < deadline and not all(
+                p.get("rejected_by_kind", {}).get(k, 0) >= 1 for k in hostile
+            ):
                 for payload in hostile.values():  # again, in case a busy learner's inbox dropped one
                     pub.put(payload)
                 time.sleep(3.0)
                 p = read_json(run.progress) or {}
             pub.undeclare()
-        p = wait_for(run.progress, lambda p: all(p["rejected_by_kind"].get(k, 0) >= 1 for k in hostile) and p["updates"] > before + 5, 60, "rejections")
+        p = wait_for(
+            run.progress,
+            lambda p: all(p["rejected_by_kind"].get(k, 0) >= 1 for k in hostile) and p["updates"] > before + 5,
+            60,
+            "rejections",
+        )
         assert "evil" not in p["actors_seen"]  # nothing of the hostile sender entered the replay
         assert p["actors_seen"] == ["actor-0"] and run.procs["learner"].poll() is None
     finally:
@@ -131,7 +172,9 @@ def test_learner_killed_and_resumed_from_checkpoint_while_actor_keeps_running(tm
         at = int(re.search(r"(\d+)", saved[-1]).group(1))
         run.progress.unlink()
         run.learner("resume=true", name="learner2")
-        p = wait_for(run.progress, lambda p: p["updates"] > at + 10 and p["inserted"] > 0, 150, "resumed learner training")
+        p = wait_for(
+            run.progress, lambda p: p["updates"] > at + 10 and p["inserted"] > 0, 150, "resumed learner training"
+        )
         assert p["updates"] > at  # counted on from the checkpoint, not from 0
         assert run.procs["actor-0"].poll() is None  # the actor was never restarted: it reconnected by itself
         assert "resumed from" in (tmp_path / "learner2.log").read_text()
@@ -155,7 +198,9 @@ def test_router_restart_resumes_traffic_and_lost_chunks_are_counted_exactly(tmp_
         stats = json.loads((tmp_path / "actor-0.log").read_text().strip().splitlines()[-1])
         assert stats["dropped"] == 0 and stats["send_errors"] == 0  # every chunk was handed to zenoh
         # the learner drains its inbox between training bursts: wait until everything that arrived is in
-        p = wait_for(run.progress, lambda p: p["chunks"] + p["lost_chunks"] >= stats["chunks"], 90, "learner to ingest the rest")
+        p = wait_for(
+            run.progress, lambda p: p["chunks"] + p["lost_chunks"] >= stats["chunks"], 90, "learner to ingest the rest"
+        )
         assert p["lost_chunks"] > 0  # the outage lost something ...
         assert p["chunks"] + p["lost_chunks"] == stats["chunks"]  # ... and the counter accounts for exactly that
     finally:
@@ -197,8 +242,16 @@ def _gone(pid):
 
 def _train_args(tmp_path, *extra):
     endpoint = f"tcp/127.0.0.1:{free_port()}"
-    return endpoint, [*TINY, f"transport.connect=[{endpoint}]", f"transport.router_listen=[{endpoint}]", "actors.restart_backoff_s=0.5",
-                      "progress=false", "run=train", f"hydra.run.dir={tmp_path}", *extra]
+    return endpoint, [
+        *TINY,
+        f"transport.connect=[{endpoint}]",
+        f"transport.router_listen=[{endpoint}]",
+        "actors.restart_backoff_s=0.5",
+        "progress=false",
+        "run=train",
+        f"hydra.run.dir={tmp_path}",
+        *extra,
+    ]
 
 
 def test_gvf_train_restarts_a_killed_actor_resumes_a_killed_learner_and_gvfctl_stop_ends_it(tmp_path):
@@ -212,7 +265,12 @@ def test_gvf_train_restarts_a_killed_actor_resumes_a_killed_learner_and_gvfctl_s
         os.kill(actor, signal.SIGKILL)
         _wait_pid(log, "actor-1", other_than=actor)
         assert re.search(r"actor-1 crashed \(exit -9\); restarting", log.read_text())
-        wait_for(progress, lambda p: p["updates"] >= 25 and p["actors_alive"] == 2, 90, "a checkpoint after the actor's restart")
+        wait_for(
+            progress,
+            lambda p: p["updates"] >= 25 and p["actors_alive"] == 2,
+            90,
+            "a checkpoint after the actor's restart",
+        )
         learner = _pid(log, "learner")
         os.kill(learner, signal.SIGKILL)
         _wait_pid(log, "learner", other_than=learner)
@@ -220,8 +278,12 @@ def test_gvf_train_restarts_a_killed_actor_resumes_a_killed_learner_and_gvfctl_s
         _wait_text(tmp_path / "logs" / "learner.log", "resumed from", 60)
         wait_for(progress, lambda p: p["updates"] >= 30, 90, "training after the learner resumed")
         pids = [int(p) for p in re.findall(r"started \S+ \(pid (\d+)\)", log.read_text())]
-        out = subprocess.run([sys.executable, "deploy/gvfctl.py", "stop", "--connect", endpoint, "--run", "train"],
-                             capture_output=True, text=True, timeout=60)
+        out = subprocess.run(
+            [sys.executable, "deploy/gvfctl.py", "stop", "--connect", endpoint, "--run", "train"],
+            capture_output=True,
+            text=True,
+            timeout=60,
+        )
         assert out.returncode == 0, out.stderr
         proc.wait(60)
         text = log.read_text()
@@ -233,7 +295,9 @@ def test_gvf_train_restarts_a_killed_actor_resumes_a_killed_learner_and_gvfctl_s
 
 
 def test_gvf_train_ends_by_itself_at_max_updates_with_every_child_stopped(tmp_path):
-    _, args = _train_args(tmp_path, "actors.count=1", "learner.max_updates=20", "eval.every_updates=10", "eval.directions=[ccw]")
+    _, args = _train_args(
+        tmp_path, "actors.count=1", "learner.max_updates=20", "eval.every_updates=10", "eval.directions=[ccw]"
+    )
     proc = script("gvf-train", args, tmp_path / "train.log")
     try:
         proc.wait(240)

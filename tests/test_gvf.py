@@ -8,22 +8,20 @@ import torch
 from tensordict import TensorDict
 from torch import nn
 
-from learner.gvf import (cumulants, expand_gammas, gvf_loss, importance_ratio, log_tau,
-                         td_target)
+from learner.gvf import cumulants, expand_gammas, gvf_loss, importance_ratio, log_tau, td_target
 from learner.replay import ImportanceResamplingReplay
 
 
 def test_td_target_scales_cumulants_and_stops_at_termination():
     gammas = expand_gammas([0.0, 0.9], 2)  # alpha@0, alpha@0.9, beta@0, beta@0.9
     assert gammas.tolist() == pytest.approx([0.0, 0.9, 0.0, 0.9])
-    c = cumulants({"alpha": torch.tensor([[0.5], [0.5]]), "beta": torch.tensor([[-1.0], [2.0]])},
-                  ["alpha", "beta"])
+    c = cumulants({"alpha": torch.tensor([[0.5], [0.5]]), "beta": torch.tensor([[-1.0], [2.0]])}, ["alpha", "beta"])
     next_v = torch.tensor([[10.0, 20.0, 30.0, 40.0]] * 2)
     terminated = torch.tensor([[False], [True]])
     y = td_target(c, terminated, next_v, gammas)
-    expected = torch.tensor([
-        [0.5, 0.1 * 0.5 + 0.9 * 20.0, -1.0, 0.1 * -1.0 + 0.9 * 40.0],
-        [0.5, 0.1 * 0.5, 2.0, 0.1 * 2.0]])
+    expected = torch.tensor(
+        [[0.5, 0.1 * 0.5 + 0.9 * 20.0, -1.0, 0.1 * -1.0 + 0.9 * 40.0], [0.5, 0.1 * 0.5, 2.0, 0.1 * 2.0]]
+    )
     assert torch.allclose(y, expected)
 
 
@@ -97,20 +95,28 @@ def behaviour_data(n: int, g: torch.Generator) -> TensorDict:
         rows.append((pos, last, a, (new_pos - START) / START, direction, terminated))
         # the state keeps the move's direction as its last action, +-0.5 (like an env that
         # quantises actions), so that tau(.|s) depends on s only through that direction
-        pos, last = (START, 0.5 if torch.rand(1, generator=g) < 0.5 else -0.5) if terminated \
-            else (new_pos, 0.5 * direction)
+        pos, last = (
+            (START, 0.5 if torch.rand(1, generator=g) < 0.5 else -0.5) if terminated else (new_pos, 0.5 * direction)
+        )
     pos_, last_, a_, alpha_, beta_, term_ = (torch.tensor(col) for col in zip(*rows))
     state = pos_ * 2 + (last_ > 0).long()
     last_action = last_.float().reshape(-1, 1)
     action = a_.float().reshape(-1, 1)
     next_state = ((pos_ + beta_).clamp(0, N_POS - 1)) * 2 + (action.reshape(-1) > 0).long()
     # mu(a|s) = 0.5 tau(a | last) + 0.5 tau(a | -last): known exactly
-    log_mu = torch.logaddexp(log_tau(action, last_action, WIDTH),
-                             log_tau(action, -last_action, WIDTH)) + math.log(0.5)
+    log_mu = torch.logaddexp(log_tau(action, last_action, WIDTH), log_tau(action, -last_action, WIDTH)) + math.log(0.5)
     rho, _ = importance_ratio(log_tau(action, last_action, WIDTH), log_mu, rho_max=100.0)
-    return TensorDict({"state": state, "next_state": next_state,
-                       "alpha": alpha_.float().reshape(-1, 1), "beta": beta_.float().reshape(-1, 1),
-                       "terminated": term_.reshape(-1, 1), "rho": rho}, batch_size=[n])
+    return TensorDict(
+        {
+            "state": state,
+            "next_state": next_state,
+            "alpha": alpha_.float().reshape(-1, 1),
+            "beta": beta_.float().reshape(-1, 1),
+            "terminated": term_.reshape(-1, 1),
+            "rho": rho,
+        },
+        batch_size=[n],
+    )
 
 
 def train(data: TensorDict, resample: bool, steps: int = 1000) -> torch.Tensor:
@@ -161,8 +167,7 @@ def test_recorded_returns_for_the_held_out_metric():
     returns, valid = recorded_returns(c, end, end, gammas)
     assert torch.allclose(returns, torch.tensor([[1.0, 1.375], [2.0, 1.75], [3.0, 1.5]]))
     assert valid.all()  # terminated: nothing is cut off
-    returns, valid = recorded_returns(c, torch.zeros(3, dtype=torch.bool), end, gammas,
-                                      tail_tol=0.2)
+    returns, valid = recorded_returns(c, torch.zeros(3, dtype=torch.bool), end, gammas, tail_tol=0.2)
     assert torch.allclose(returns[:, 1], torch.tensor([1.375, 1.75, 1.5]))
     assert valid[:, 0].all() and valid[:, 1].tolist() == [True, False, False]  # 0.5^k tail
 
@@ -185,8 +190,7 @@ def test_gvf_converges_to_the_values_of_each_terminal_convention(terminal):
         gvf_loss(v[state], target, 1.0).backward()
         optimizer.step()
     steps_left = (n - state).double().reshape(-1, 1)
-    expected = (torch.ones(n, len(gammas)) if terminal == "absorbing"
-                else 1.0 - gammas.double() ** steps_left)
+    expected = torch.ones(n, len(gammas)) if terminal == "absorbing" else 1.0 - gammas.double() ** steps_left
     assert torch.allclose(v.detach().double(), expected.double(), atol=1e-4), (v, expected)
 
 

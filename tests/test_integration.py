@@ -34,10 +34,20 @@ def test_learner_and_actor_processes_train_over_zenoh(tmp_path, endpoint):
     common = [*TINY, f"transport.connect=[{endpoint}]", "run=it"]
     procs = []
     try:
-        procs.append(script("gvf-router", [f"transport.router_listen=[{endpoint}]", f"hydra.run.dir={tmp_path}/router"], tmp_path / "router.log"))
+        procs.append(
+            script(
+                "gvf-router",
+                [f"transport.router_listen=[{endpoint}]", f"hydra.run.dir={tmp_path}/router"],
+                tmp_path / "router.log",
+            )
+        )
         time.sleep(1.0)
         procs.append(script("gvf-learner", [*common, f"hydra.run.dir={tmp_path}/learner"], tmp_path / "learner.log"))
-        actor = script("gvf-actor", [*common, "actor.max_env_steps=2500", f"hydra.run.dir={tmp_path}/actor"], tmp_path / "actor.log")
+        actor = script(
+            "gvf-actor",
+            [*common, "actor.max_env_steps=2500", f"hydra.run.dir={tmp_path}/actor"],
+            tmp_path / "actor.log",
+        )
         procs.append(actor)
         actor.wait(240)
         assert actor.returncode == 0, (tmp_path / "actor.log").read_text()[-3000:]
@@ -53,7 +63,11 @@ def test_learner_and_actor_processes_train_over_zenoh(tmp_path, endpoint):
 
 
 def test_an_actor_waiting_for_ever_for_a_router_stops_on_sigterm(tmp_path, endpoint):
-    proc = script("gvf-actor", [f"transport.connect=[{endpoint}]", "transport.connect_timeout_s=-1", f"hydra.run.dir={tmp_path}"], tmp_path / "actor.log")
+    proc = script(
+        "gvf-actor",
+        [f"transport.connect=[{endpoint}]", "transport.connect_timeout_s=-1", f"hydra.run.dir={tmp_path}"],
+        tmp_path / "actor.log",
+    )
     try:
         time.sleep(5.0)
         assert proc.poll() is None  # still waiting: nobody listens there

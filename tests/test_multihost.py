@@ -30,20 +30,20 @@ def namespaces():
     if os.geteuid() != 0 or shutil.which("ip") is None:
         pytest.skip("needs root and iproute2 to create network namespaces")
     tag = f"{os.getpid() % 100000}"
-    r, l, a = f"gvfr{tag}", f"gvfl{tag}", f"gvfa{tag}"
+    r, ln, a = f"gvfr{tag}", f"gvfl{tag}", f"gvfa{tag}"
     try:
-        for ns in (r, l, a):
+        for ns in (r, ln, a):
             ip("netns", "add", ns)
             ip("link", "set", "lo", "up", ns=ns)
     except subprocess.CalledProcessError as err:
-        for ns in (r, l, a):
+        for ns in (r, ln, a):
             subprocess.run(["ip", "netns", "del", ns], capture_output=True)
         pytest.skip(f"cannot create network namespaces here: {err.stderr.decode().strip()}")
     try:
         ip("link", "add", "br0", "type", "bridge", ns=r)
         ip("addr", "add", "192.0.2.1/24", "dev", "br0", ns=r)
         ip("link", "set", "br0", "up", ns=r)
-        for ns, host in ((l, 2), (a, 3)):
+        for ns, host in ((ln, 2), (a, 3)):
             inner, outer = f"v{ns}", f"b{ns}"
             ip("link", "add", inner, "type", "veth", "peer", "name", outer)
             ip("link", "set", inner, "netns", ns)
@@ -52,32 +52,54 @@ def namespaces():
             ip("link", "set", outer, "up", ns=r)
             ip("addr", "add", f"192.0.2.{host}/24", "dev", inner, ns=ns)
             ip("link", "set", inner, "up", ns=ns)
-        yield r, l, a
+        yield r, ln, a
     finally:
-        for ns in (r, l, a):
+        for ns in (r, ln, a):
             subprocess.run(["ip", "netns", "del", ns], capture_output=True)
 
 
 def in_ns(ns, name, args, log):
     env = {**os.environ, "OMP_NUM_THREADS": "1", "PYTHONUNBUFFERED": "1"}
-    return subprocess.Popen(["ip", "netns", "exec", ns, str(BIN / name), *args], stdout=open(log, "wb"), stderr=subprocess.STDOUT, env=env)
+    return subprocess.Popen(
+        ["ip", "netns", "exec", ns, str(BIN / name), *args], stdout=open(log, "wb"), stderr=subprocess.STDOUT, env=env
+    )
 
 
 def rx_bytes(ns, dev):
-    out = subprocess.run(["ip", "netns", "exec", ns, "cat", f"/sys/class/net/{dev}/statistics/rx_bytes"], capture_output=True, text=True, check=True)
+    out = subprocess.run(
+        ["ip", "netns", "exec", ns, "cat", f"/sys/class/net/{dev}/statistics/rx_bytes"],
+        capture_output=True,
+        text=True,
+        check=True,
+    )
     return int(out.stdout)
 
 
 def test_router_learner_and_two_actors_in_three_namespaces(namespaces, tmp_path):
-    r, l, a = namespaces
+    r, ln, a = namespaces
     endpoint = "tcp/192.0.2.1:7447"
     common = [*TINY, f"transport.connect=[{endpoint}]", "run=multihost"]
     procs = []
     try:
-        procs.append(in_ns(r, "gvf-router", [f"transport.router_listen=[{endpoint}]", f"hydra.run.dir={tmp_path}/router"], tmp_path / "router.log"))
+        procs.append(
+            in_ns(
+                r,
+                "gvf-router",
+                [f"transport.router_listen=[{endpoint}]", f"hydra.run.dir={tmp_path}/router"],
+                tmp_path / "router.log",
+            )
+        )
         time.sleep(1.0)
-        procs.append(in_ns(l, "gvf-learner", [*common, f"hydra.run.dir={tmp_path}/learner"], tmp_path / "learner.log"))
-        actors = [in_ns(a, "gvf-actor", [*common, f"actor.name=far-{i}", "actor.max_env_steps=2000", f"hydra.run.dir={tmp_path}/a{i}"], tmp_path / f"actor{i}.log") for i in range(2)]
+        procs.append(in_ns(ln, "gvf-learner", [*common, f"hydra.run.dir={tmp_path}/learner"], tmp_path / "learner.log"))
+        actors = [
+            in_ns(
+                a,
+                "gvf-actor",
+                [*common, f"actor.name=far-{i}", "actor.max_env_steps=2000", f"hydra.run.dir={tmp_path}/a{i}"],
+                tmp_path / f"actor{i}.log",
+            )
+            for i in range(2)
+        ]
         procs += actors
         for i, proc in enumerate(actors):
             proc.wait(240)
@@ -86,7 +108,7 @@ def test_router_learner_and_two_actors_in_three_namespaces(namespaces, tmp_path)
             assert stats["env_steps"] >= 2000 and stats["policy_version"] > 0  # weights crossed back
         progress = json.loads((tmp_path / "learner" / "progress.json").read_text())
         assert progress["updates"] > 0 and progress["actors_seen"] == ["far-0", "far-1"]
-        assert rx_bytes(l, f"v{l}") > 1_000_000  # the transitions really came in over the learner's veth
+        assert rx_bytes(ln, f"v{ln}") > 1_000_000  # the transitions really came in over the learner's veth
     finally:
         for proc in reversed(procs):
             stop(proc)

@@ -11,8 +11,7 @@ from hydra import compose, initialize_config_dir
 from omegaconf import OmegaConf
 
 from common.config.agent import AgentConfig, ScaleConfig, register
-from common.networks import (BranchedActor, BranchedCritic, GVFNetwork, PilotNetTrunk,
-                             make_networks, make_policy)
+from common.networks import BranchedActor, BranchedCritic, GVFNetwork, PilotNetTrunk, make_networks, make_policy
 
 CONF = Path(__file__).resolve().parents[1] / "conf"
 VARIANTS = ["gvf_ddpg", "gvf_ddpg_g0", "gvf_ddpg_g095", "ddpg_image", "ddpg_lowdim"]
@@ -28,9 +27,13 @@ def load(variant: str, scale: str) -> tuple[AgentConfig, ScaleConfig]:
 
 def obs(n: int, seed: int = 0) -> dict[str, torch.Tensor]:
     g = torch.Generator().manual_seed(seed)
-    return {"image": torch.randint(0, 256, (n, 2, 64, 128), dtype=torch.uint8, generator=g),
-            "speed": torch.rand(n, 1, generator=g), "last_action": torch.rand(n, 2, generator=g),
-            "alpha": torch.rand(n, 1, generator=g), "beta": torch.rand(n, 1, generator=g)}
+    return {
+        "image": torch.randint(0, 256, (n, 2, 64, 128), dtype=torch.uint8, generator=g),
+        "speed": torch.rand(n, 1, generator=g),
+        "last_action": torch.rand(n, 2, generator=g),
+        "alpha": torch.rand(n, 1, generator=g),
+        "beta": torch.rand(n, 1, generator=g),
+    }
 
 
 @pytest.mark.parametrize("scale", ["small", "paper"])
@@ -62,16 +65,19 @@ def test_pilotnet_trunk_shapes_match_the_paper():
     trunk = PilotNetTrunk([24, 36, 48, 64, 64])
     convs = [m for m in trunk.modules() if isinstance(m, torch.nn.Conv2d)]
     assert [(c.out_channels, c.kernel_size, c.stride) for c in convs] == [
-        (24, (5, 5), (2, 2)), (36, (5, 5), (2, 2)), (48, (5, 5), (2, 2)),
-        (64, (3, 3), (1, 1)), (64, (3, 3), (1, 1))]
+        (24, (5, 5), (2, 2)),
+        (36, (5, 5), (2, 2)),
+        (48, (5, 5), (2, 2)),
+        (64, (3, 3), (1, 1)),
+        (64, (3, 3), (1, 1)),
+    ]
     assert trunk.out_dim == 64 * 1 * 9  # 64x128 -> 30x62 -> 13x29 -> 5x13 -> 3x11 -> 1x9
 
 
 def test_gvf_network_layer_sizes():
     gvf = GVFNetwork([24, 36, 48, 64, 64], [512, 384], 10)
     linears = [m for m in gvf.head if isinstance(m, torch.nn.Linear)]
-    assert [(l.in_features, l.out_features) for l in linears] == [(576 + 3, 512), (512, 384),
-                                                                  (384, 10)]
+    assert [(layer.in_features, layer.out_features) for layer in linears] == [(576 + 3, 512), (512, 384), (384, 10)]
 
 
 def test_actor_last_layers_are_near_zero_and_outputs_clipped():
@@ -80,7 +86,7 @@ def test_actor_last_layers_are_near_zero_and_outputs_clipped():
     for branch in actor.branches:
         assert branch[-1].weight.abs().max() <= 1e-3
         assert torch.all(branch[-1].bias == 0)
-        assert [l.out_features for l in branch if isinstance(l, torch.nn.Linear)] == [256, 128, 1]
+        assert [layer.out_features for layer in branch if isinstance(layer, torch.nn.Linear)] == [256, 128, 1]
     x = torch.randn(64, 13)
     assert actor(x).abs().max() < 0.05  # the initial policy barely moves
     for branch in actor.branches:
@@ -127,7 +133,9 @@ def test_lowdim_policy_reads_alpha_and_beta():
 
 
 def test_common_imports_neither_learner_nor_actors():
-    code = ("import sys, common.networks, common.config.agent; "
-            "bad = [m for m in sys.modules if m.split('.')[0] in ('learner', 'actors')]; "
-            "assert not bad, bad")
+    code = (
+        "import sys, common.networks, common.config.agent; "
+        "bad = [m for m in sys.modules if m.split('.')[0] in ('learner', 'actors')]; "
+        "assert not bad, bad"
+    )
     subprocess.run([sys.executable, "-c", code], check=True, cwd=CONF.parent)

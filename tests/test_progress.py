@@ -25,7 +25,9 @@ def test_zero_env_steps_under_the_rate_limit_read_as_paused_not_dead():
 
 
 def test_view_shows_the_last_and_best_evaluation_and_the_end_summary_names_the_eval_command(tmp_path):
-    (tmp_path / "progress.json").write_text(json.dumps({"updates": 3000, "env_steps_per_s": 0, "flow_paused": True, "episodes": 9}))
+    (tmp_path / "progress.json").write_text(
+        json.dumps({"updates": 3000, "env_steps_per_s": 0, "flow_paused": True, "episodes": 9})
+    )
     lines = [_record(1000, 3, 2.5), _record(2000, 12, 4.75), _record(3000, 8, 4.9)]
     (tmp_path / "eval.jsonl").write_text("".join(json.dumps(x) + "\n" for x in lines) + '{"half-writ')
     progress = Progress(tmp_path, enabled=False)

@@ -12,8 +12,9 @@ from tests.fakes import random_transitions
 
 def items(rho: torch.Tensor, start: int = 0) -> TensorDict:
     n = rho.shape[0]
-    return TensorDict({"x": torch.arange(start, start + n).reshape(-1, 1),
-                       "rho": rho.reshape(-1, 1).float()}, batch_size=[n])
+    return TensorDict(
+        {"x": torch.arange(start, start + n).reshape(-1, 1), "rho": rho.reshape(-1, 1).float()}, batch_size=[n]
+    )
 
 
 def chi_square_p_value(counts: torch.Tensor, probs: torch.Tensor) -> float:
@@ -22,8 +23,7 @@ def chi_square_p_value(counts: torch.Tensor, probs: torch.Tensor) -> float:
     expected = probs[keep] * counts.sum()
     stat = ((counts[keep] - expected) ** 2 / expected).sum()
     df = int(keep.sum()) - 1
-    return float(torch.special.gammaincc(torch.tensor(df / 2.0, dtype=torch.float64),
-                                         stat.double() / 2.0))
+    return float(torch.special.gammaincc(torch.tensor(df / 2.0, dtype=torch.float64), stat.double() / 2.0))
 
 
 def test_torchrl_extension_with_the_sum_tree_imports():

@@ -15,13 +15,19 @@ from tests.fake_roles import CALLS
 from tests.helpers import TINY, compose_run
 
 ROOT = Path(__file__).resolve().parents[1]
+
+
 def _fake_roles(monkeypatch, learner):
     CALLS.clear()
-    monkeypatch.setattr(roles, "ROLES", {
-        "learner": RoleSpec("learner", learner, ends_run=True),
-        "actor": RoleSpec("actor", "tests.fake_roles:crash_once"),
-        "evaluator": RoleSpec("evaluator", "tests.fake_roles:wait_stop"),
-    })
+    monkeypatch.setattr(
+        roles,
+        "ROLES",
+        {
+            "learner": RoleSpec("learner", learner, ends_run=True),
+            "actor": RoleSpec("actor", "tests.fake_roles:crash_once"),
+            "evaluator": RoleSpec("evaluator", "tests.fake_roles:wait_stop"),
+        },
+    )
 
 
 def test_a_crashed_role_is_restarted_and_a_clean_learner_exit_ends_the_run(monkeypatch, tmp_path):
@@ -51,7 +57,11 @@ def test_a_role_that_keeps_running_is_neither_restarted_nor_ends_the_run(monkeyp
 
 
 def test_process_mode_starts_a_router_and_thread_mode_does_not(tmp_path):
-    assert [c.role for c in Supervisor(compose_run(["actors.count=1"]), str(tmp_path)).children] == ["router", "learner", "actor"]
+    assert [c.role for c in Supervisor(compose_run(["actors.count=1"]), str(tmp_path)).children] == [
+        "router",
+        "learner",
+        "actor",
+    ]
     threads = Supervisor(compose_run(["actors.count=1", "transport=inproc", "eval.every_updates=5"]), str(tmp_path))
     assert [c.role for c in threads.children] == ["learner", "actor", "evaluator"] and threads.bus is not None
 
@@ -88,7 +98,10 @@ def test_roles_declare_keys_through_the_wiring_table():
 def test_wire_doc_table_matches_the_wiring_table():
     text = (ROOT / "docs" / "wire.md").read_text()
     rows = re.findall(r"^\| `gvf/<run>/([^`]+)` \| ([^|]+) \| ([^|]+) \| [^|]+ \| ([^|]+) \|$", text, re.M)
-    doc = [(key, *(tuple(x.strip() for x in col.split(",")) for col in (pub, sub)), cc.strip()) for key, pub, sub, cc in rows]
+    doc = [
+        (key, *(tuple(x.strip() for x in col.split(",")) for col in (pub, sub)), cc.strip())
+        for key, pub, sub, cc in rows
+    ]
     assert doc == [(r.key, r.publishers, r.subscribers, r.congestion) for r in WIRING]
 
 

@@ -28,9 +28,16 @@ def test_learner_rate_limit_pauses_the_actors_instead_of_piling_up_data(tmp_path
     """samples_per_insert 64 at batch 32: each transition owes 2 updates, far more than a tiny
     learner keeps up with. With the flow limit the actor waits for the updates; without it
     the actor runs ahead."""
-    base = [*TINY, "transport=inproc", "progress=false", "actors.count=1", "learner.samples_per_insert=64",
-            "learner.max_updates=150", "max_seconds=90",
-            "agent.behaviour_warmup_updates=0"]  # its seconds before update 1 let the actor run on: not what this measures
+    base = [
+        *TINY,
+        "transport=inproc",
+        "progress=false",
+        "actors.count=1",
+        "learner.samples_per_insert=64",
+        "learner.max_updates=150",
+        "max_seconds=90",
+        "agent.behaviour_warmup_updates=0",
+    ]  # its seconds before update 1 let the actor run on: not what this measures
     on = train(compose_run([*base, "learner.max_owed_updates=8"]), str(tmp_path / "on"), threading.Event())
     off = train(compose_run([*base, "learner.max_owed_updates=0"]), str(tmp_path / "off"), threading.Event())
     assert on["updates"] >= 150 and off["updates"] >= 150

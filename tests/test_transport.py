@@ -21,10 +21,10 @@ import numpy as np
 import pytest
 
 from common.config.transport import TransportConfig
-from common.transport.inbox import BoundedInbox
-from common.transport.inproc import Bus, InprocTransport
 from common.keys import Keys, key_matches
 from common.transport import Transport, make_transport
+from common.transport.inbox import BoundedInbox
+from common.transport.inproc import Bus, InprocTransport
 from common.wire import Control, TransitionChunk, Weights, WireError, decode, encode
 
 REPO = Path(__file__).resolve().parents[1]
@@ -44,14 +44,26 @@ def wait_for(predicate, timeout: float = 10.0, interval: float = 0.02) -> bool:
 def small_chunk(seq: int) -> TransitionChunk:
     steps = 2
     return TransitionChunk(
-        actor="a0", env=0, episode=1, seq=seq, policy_version=0, step0=2 * seq,
+        actor="a0",
+        env=0,
+        episode=1,
+        seq=seq,
+        policy_version=0,
+        step0=2 * seq,
         frames=np.full((steps + 2, 64, 128), seq % 256, np.uint8),
-        speed=np.zeros((steps + 1, 1)), last_action=np.zeros((steps + 1, 2)),
-        action=np.zeros((steps, 2)), reward=np.ones(steps), terminated=np.zeros(steps, bool),
-        truncated=np.zeros(steps, bool), alpha=np.zeros(steps + 1), beta=np.zeros(steps + 1))
+        speed=np.zeros((steps + 1, 1)),
+        last_action=np.zeros((steps + 1, 2)),
+        action=np.zeros((steps, 2)),
+        reward=np.ones(steps),
+        terminated=np.zeros(steps, bool),
+        truncated=np.zeros(steps, bool),
+        alpha=np.zeros(steps + 1),
+        beta=np.zeros(steps + 1),
+    )
 
 
 # --- inbox and keys ------------------------------------------------------------------------
+
 
 def test_inbox_drops_and_counts_when_full():
     new = BoundedInbox(2)
@@ -84,11 +96,14 @@ def test_keys_and_matching():
     for bad in ("a/b", "*", "", "a b", "$x", ".."):
         with pytest.raises(ValueError):
             keys.transitions(bad)
-    assert keys.publish("transitions", "actor", actor="a7") == keys.transitions("a7")  # the table and the builders agree
+    assert keys.publish("transitions", "actor", actor="a7") == keys.transitions(
+        "a7"
+    )  # the table and the builders agree
     assert keys.subscribe("transitions", "learner") == keys.all_transitions
 
 
 # --- in-process transport ------------------------------------------------------------------
+
 
 def test_inproc_pub_sub_fetch_and_liveliness():
     bus = Bus()
@@ -143,6 +158,7 @@ def test_make_transport_rejects_unknown_backend():
 
 
 # --- real Zenoh ----------------------------------------------------------------------------
+
 
 def free_port() -> int:
     with socket.socket() as s:
@@ -200,8 +216,12 @@ def router_port():
 def test_zenoh_config_from_transport_config():
     from common.transport.zenoh_backend import zenoh_config
 
-    cfg = TransportConfig(mode="peer", listen=["tcp/127.0.0.1:0"], max_message_size=12345,
-                          zenoh_overrides={"transport/link/tx/lease": "3000"})
+    cfg = TransportConfig(
+        mode="peer",
+        listen=["tcp/127.0.0.1:0"],
+        max_message_size=12345,
+        zenoh_overrides={"transport/link/tx/lease": "3000"},
+    )
     conf = zenoh_config(cfg)
 
     def get(path):
@@ -334,8 +354,7 @@ def test_zenoh_peer_mode_without_router():
 
     port = free_port()
     listener = TransportConfig(mode="peer", listen=[f"tcp/127.0.0.1:{port}"], connect=[])
-    dialer = TransportConfig(mode="peer", connect=[f"tcp/127.0.0.1:{port}"],
-                             connect_timeout_s=5.0)
+    dialer = TransportConfig(mode="peer", connect=[f"tcp/127.0.0.1:{port}"], connect_timeout_s=5.0)
     with ZenohTransport(listener) as a, ZenohTransport(dialer) as b:
         sub = a.subscribe("gvf/peers/control")
         pub = b.publisher("gvf/peers/control")
@@ -347,8 +366,7 @@ def test_zenoh_client_without_router_raises_connection_error():
     from common.transport.zenoh_backend import ZenohTransport
 
     with pytest.raises(ConnectionError):
-        ZenohTransport(TransportConfig(mode="client", connect=[f"tcp/127.0.0.1:{free_port()}"],
-                                       connect_timeout_s=0))
+        ZenohTransport(TransportConfig(mode="client", connect=[f"tcp/127.0.0.1:{free_port()}"], connect_timeout_s=0))
 
 
 def test_unclosed_session_does_not_hang_the_interpreter():
@@ -360,7 +378,6 @@ def test_unclosed_session_does_not_hang_the_interpreter():
         t.watch_alive("gvf/x/alive/**"); t.declare_alive("gvf/x/alive/actor/a")
         print("leaving without close", flush=True)
     """)
-    done = subprocess.run([sys.executable, "-c", script], cwd=REPO, capture_output=True,
-                          text=True, timeout=60)
+    done = subprocess.run([sys.executable, "-c", script], cwd=REPO, capture_output=True, text=True, timeout=60)
     assert done.returncode == 0, done.stderr
     assert "leaving without close" in done.stdout

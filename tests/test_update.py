@@ -22,9 +22,17 @@ VARIANTS = {
     "ddpg_image": dict(representation="image"),
     "ddpg_lowdim": dict(representation="lowdim"),
 }
-TINY = ScaleConfig(name="tiny", conv_channels=[4, 8, 8, 8, 8], gvf_hidden=[32, 32],
-                   behaviour_hidden=[32, 16], policy_hidden=[32, 16],
-                   image_policy_hidden=[32, 16], batch_size=16, buffer_size=300, warmup=200)
+TINY = ScaleConfig(
+    name="tiny",
+    conv_channels=[4, 8, 8, 8, 8],
+    gvf_hidden=[32, 32],
+    behaviour_hidden=[32, 16],
+    policy_hidden=[32, 16],
+    image_policy_hidden=[32, 16],
+    batch_size=16,
+    buffer_size=300,
+    warmup=200,
+)
 PAPER_RHO = dict(behaviour_warmup_updates=0, rho_refresh_every=0)  # rho fixed at insert (Algorithm 1)
 
 
@@ -35,8 +43,7 @@ def data():
 
 def make_core(variant: str, seed: int = 0, **agent_overrides) -> LearningCore:
     torch.set_num_threads(1)
-    agent = AgentConfig(name=variant, **{**VARIANTS[variant], "metrics_every": 2,
-                                         "lr_actor": 1e-3, **agent_overrides})
+    agent = AgentConfig(name=variant, **{**VARIANTS[variant], "metrics_every": 2, "lr_actor": 1e-3, **agent_overrides})
     return LearningCore(agent, TINY, seed=seed)
 
 
@@ -57,16 +64,21 @@ def test_every_variant_trains_all_its_networks(variant, data):
     metrics = core.update()
     expected = {"losses/actor", "losses/critic", "train/q_mean", "train/q_target_mean"}
     if core.predictive:
-        expected |= {"losses/td", "losses/behaviour", "train/rho_bar", "train/rho_clip_rate",
-                     "eval/gvf_return_rmse_alpha", "eval/constant_return_rmse_beta"}
+        expected |= {
+            "losses/td",
+            "losses/behaviour",
+            "train/rho_bar",
+            "train/rho_clip_rate",
+            "eval/gvf_return_rmse_alpha",
+            "eval/constant_return_rmse_beta",
+        }
     assert expected <= set(metrics), expected - set(metrics)
     assert all(torch.isfinite(torch.tensor(v)) for v in metrics.values())
     for name, module in core.nets.modules().items():
         changed = [not torch.equal(v, before[name][k]) for k, v in module.state_dict().items()]
         assert all(changed), f"{name}: {sum(changed)} of {len(changed)} tensors moved"
     target_after = core.ddpg.loss_module.target_value_network_params
-    assert any(not torch.equal(a, b) for a, b in zip(target_after.values(True, True),
-                                                     target_before.values(True, True)))
+    assert any(not torch.equal(a, b) for a, b in zip(target_after.values(True, True), target_before.values(True, True)))
     acting = make_policy(core.agent, TINY)
     acting.load_state_dict(core.policy_state_dict())
     with torch.no_grad():
@@ -92,10 +104,10 @@ def test_rho_at_insert_is_tau_over_mu_hat_and_clips_are_counted(data):
     batch = data[:64]
     core.add(batch)
     with torch.no_grad():
-        logit = core.nets.behaviour(batch["image"], batch["speed"], batch["last_action"],
-                                    batch["action"])
-    log_ratio = (log_tau(batch["action"], batch["last_action"], core.agent.tau_width)
-                 - log_mu_hat(logit, batch["action"]))
+        logit = core.nets.behaviour(batch["image"], batch["speed"], batch["last_action"], batch["action"])
+    log_ratio = log_tau(batch["action"], batch["last_action"], core.agent.tau_width) - log_mu_hat(
+        logit, batch["action"]
+    )
     expected = log_ratio.exp().clamp(max=20.0).reshape(-1).double()
     assert torch.allclose(core.replay.rho[:64], expected, rtol=1e-5)
     assert core._rho_clipped == int((log_ratio.exp() > 20.0).sum()) > 0
@@ -165,7 +177,9 @@ def test_refresh_switch_rewrites_rho_of_the_sampled_batch(refresh, data):
         logit = g_before(stored["image"], stored["speed"], stored["last_action"], stored["action"])
     expected, _ = importance_ratio(
         log_tau(stored["action"], stored["last_action"], core.agent.tau_width),
-        log_mu_hat(logit, stored["action"]), core.agent.rho_max)
+        log_mu_hat(logit, stored["action"]),
+        core.agent.rho_max,
+    )
     assert torch.allclose(core.replay.rho[changed], expected.reshape(-1).double(), rtol=1e-5)
     assert abs(core.replay.rho_bar - float(core.replay.rho[:300].mean())) < 1e-9 * core.replay.rho_bar
 
@@ -211,8 +225,14 @@ def test_gvf_predictions_on_lanedrive_beat_a_constant_predictor():
     agent = AgentConfig(name="gvf_ddpg", lr_gvf=1e-3, metrics_every=10**9)
     data = collect_lanedrive(8, 300, seed=0, sigma=1.0)
     obs, truth = tau_returns(60, gammas, seed=7, sigma=1.0, terminal=agent.gvf_terminal)
-    scale = ScaleConfig(name="small", conv_channels=[8, 12, 16, 16, 16], gvf_hidden=[128, 96],
-                        behaviour_hidden=[128, 64], policy_hidden=[64, 32], batch_size=64)
+    scale = ScaleConfig(
+        name="small",
+        conv_channels=[8, 12, 16, 16, 16],
+        gvf_hidden=[128, 96],
+        behaviour_hidden=[128, 64],
+        policy_hidden=[64, 32],
+        batch_size=64,
+    )
     core = LearningCore(agent, scale, seed=0, buffer_size=len(data), warmup=800)
     order = torch.randperm(len(data), generator=torch.Generator().manual_seed(0))
     for chunk in data[order].split(160):
@@ -241,8 +261,11 @@ def test_refresh_all_rho_makes_every_stored_rho_current_and_rho_bar_exact(data):
     stored = expand(core.replay.buffer.storage.get(torch.arange(300)))
     with torch.no_grad():
         logit = core.nets.behaviour(stored["image"], stored["speed"], stored["last_action"], stored["action"])
-    expected, _ = importance_ratio(log_tau(stored["action"], stored["last_action"], core.agent.tau_width),
-                                   log_mu_hat(logit, stored["action"]), core.agent.rho_max)
+    expected, _ = importance_ratio(
+        log_tau(stored["action"], stored["last_action"], core.agent.tau_width),
+        log_mu_hat(logit, stored["action"]),
+        core.agent.rho_max,
+    )
     expected = expected.reshape(-1).double()
     assert not torch.allclose(inserted[:300], expected, rtol=1e-3)
     assert torch.allclose(core.replay.rho[:300], expected, rtol=1e-5)
@@ -299,11 +322,16 @@ def test_act_with_target_broadcasts_the_polyak_averaged_actor(data):
 def test_reward_scale_scales_the_critics_target(data, monkeypatch):
     seen = []
     for reward_scale in (1.0, 0.01):
-        core = LearningCore(AgentConfig(name="ddpg_image", metrics_every=1),
-                            dataclasses.replace(TINY, reward_scale=reward_scale), seed=0)
+        core = LearningCore(
+            AgentConfig(name="ddpg_image", metrics_every=1),
+            dataclasses.replace(TINY, reward_scale=reward_scale),
+            seed=0,
+        )
         core.add(data[:300])
         loss = core.ddpg.loss
-        monkeypatch.setattr(core.ddpg, "loss", lambda batch: (seen.append(batch["next", "reward"].clone()), loss(batch))[1])
+        monkeypatch.setattr(
+            core.ddpg, "loss", lambda batch: (seen.append(batch["next", "reward"].clone()), loss(batch))[1]
+        )
         core.update()
     assert torch.allclose(seen[1], 0.01 * seen[0])
     assert seen[0].abs().max() > 0

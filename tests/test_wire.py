@@ -12,8 +12,18 @@ import numpy as np
 import pytest
 
 from common import wire
-from common.wire import (Control, EpisodeSummary, Limits, RejectCounter, TrackTable,
-                         TransitionChunk, Weights, WireError, decode, encode)
+from common.wire import (
+    Control,
+    EpisodeSummary,
+    Limits,
+    RejectCounter,
+    TrackTable,
+    TransitionChunk,
+    Weights,
+    WireError,
+    decode,
+    encode,
+)
 
 H, W = 64, 128
 
@@ -21,13 +31,19 @@ H, W = 64, 128
 def make_chunk(steps: int = 8, seed: int = 0, **overrides) -> TransitionChunk:
     rng = np.random.default_rng(seed)
     fields = dict(
-        actor="a0", env=2, episode=5, seq=11, policy_version=3, step0=40,
+        actor="a0",
+        env=2,
+        episode=5,
+        seq=11,
+        policy_version=3,
+        step0=40,
         frames=rng.integers(0, 256, (steps + 2, H, W), dtype=np.uint8),
         speed=rng.random((steps + 1, 1), dtype=np.float32),
         last_action=rng.uniform(-1, 1, (steps + 1, 2)).astype(np.float32),
         action=rng.uniform(-1, 1, (steps, 2)).astype(np.float32),
         reward=rng.standard_normal(steps).astype(np.float32),
-        terminated=np.zeros(steps, bool), truncated=np.zeros(steps, bool),
+        terminated=np.zeros(steps, bool),
+        truncated=np.zeros(steps, bool),
         alpha=rng.uniform(-1, 1, steps + 1).astype(np.float32),
         beta=rng.uniform(-0.5, 0.5, steps + 1).astype(np.float32),
     )
@@ -51,10 +67,12 @@ def assert_kind(payload, kind: str, **kwargs) -> None:
 
 VALID = [
     make_chunk(),
-    EpisodeSummary(actor="a1", env=0, episode=9, track="oval-3", steps=1200, episode_return=-2.5,
-                   policy_version=7),
-    Weights(version=4, tensors={"actor.0.weight": np.ones((3, 4), np.float32),
-                                "critic.bias": np.arange(5, dtype=np.float64)}, epoch=1_795_000_000_000_000_000),
+    EpisodeSummary(actor="a1", env=0, episode=9, track="oval-3", steps=1200, episode_return=-2.5, policy_version=7),
+    Weights(
+        version=4,
+        tensors={"actor.0.weight": np.ones((3, 4), np.float32), "critic.bias": np.arange(5, dtype=np.float64)},
+        epoch=1_795_000_000_000_000_000,
+    ),
     TrackTable(version=2, steps={"oval": 100, "hairpin": 0}),
     Control(command="pause", reason="maintenance"),
 ]
@@ -62,13 +80,13 @@ VALID = [
 
 # --- round trips ---------------------------------------------------------------------------
 
+
 def test_chunk_round_trip_keeps_every_field():
     chunk = make_chunk(steps=5, terminated=np.array([0, 0, 0, 0, 1], bool))
     out = decode(encode(chunk), expect=TransitionChunk)
     for name in ("actor", "env", "episode", "seq", "policy_version", "step0"):
         assert getattr(out, name) == getattr(chunk, name)
-    for name in ("frames", "speed", "last_action", "action", "reward", "terminated", "truncated",
-                 "alpha", "beta"):
+    for name in ("frames", "speed", "last_action", "action", "reward", "terminated", "truncated", "alpha", "beta"):
         got, want = getattr(out, name), getattr(chunk, name)
         assert got.dtype == want.dtype and np.array_equal(got, want), name
     assert out.num_steps == 5 and not out.frames.flags.writeable
@@ -112,9 +130,12 @@ def test_encode_accepts_numpy_scalars_and_refuses_bad_fields():
     chunk = make_chunk(env=np.int64(3), seq=np.uint32(9))
     assert decode(encode(chunk)).env == 3
     assert decode(encode(TrackTable(np.int64(1), {"oval": np.int32(4)}))).steps == {"oval": 4}
-    for bad, kind in [(make_chunk(seq=1.0), "schema"), (make_chunk(actor="a b"), "value"),
-                      (make_chunk(reward=np.full(8, np.nan)), "nonfinite"),
-                      (make_chunk(action=np.zeros((8, 3))), "shape")]:
+    for bad, kind in [
+        (make_chunk(seq=1.0), "schema"),
+        (make_chunk(actor="a b"), "value"),
+        (make_chunk(reward=np.full(8, np.nan)), "nonfinite"),
+        (make_chunk(action=np.zeros((8, 3))), "shape"),
+    ]:
         with pytest.raises(WireError) as info:
             encode(bad)
         assert info.value.kind == kind
@@ -125,6 +146,7 @@ def test_expect_rejects_other_types():
 
 
 # --- hostile inputs ------------------------------------------------------------------------
+
 
 def test_garbage_empty_truncated_and_trailing_bytes():
     assert_kind(b"", "decode")
@@ -147,19 +169,33 @@ def test_wrong_or_missing_schema_version(version):
     assert_kind(pack(m), "version")
 
 
-@pytest.mark.parametrize("mutate", [
-    lambda m: m.update(type="nonsense"),
-    lambda m: m.pop("seq"),
-    lambda m: m.update(extra=1),
-    lambda m: m.update(env="2"),
-    lambda m: m.update(env=True),
-    lambda m: m.update(seq=1.5),
-    lambda m: m.update(actor=b"a0"),
-    lambda m: m.update(frames=b"raw"),
-    lambda m: m["reward"].pop("shape"),
-    lambda m: m["reward"].update(data="text"),
-], ids=["type", "missing", "unknown", "str-int", "bool-int", "float-int", "bytes-str",
-        "array-not-map", "array-no-shape", "array-data-str"])
+@pytest.mark.parametrize(
+    "mutate",
+    [
+        lambda m: m.update(type="nonsense"),
+        lambda m: m.pop("seq"),
+        lambda m: m.update(extra=1),
+        lambda m: m.update(env="2"),
+        lambda m: m.update(env=True),
+        lambda m: m.update(seq=1.5),
+        lambda m: m.update(actor=b"a0"),
+        lambda m: m.update(frames=b"raw"),
+        lambda m: m["reward"].pop("shape"),
+        lambda m: m["reward"].update(data="text"),
+    ],
+    ids=[
+        "type",
+        "missing",
+        "unknown",
+        "str-int",
+        "bool-int",
+        "float-int",
+        "bytes-str",
+        "array-not-map",
+        "array-no-shape",
+        "array-data-str",
+    ],
+)
 def test_schema_violations(mutate):
     m = as_map(make_chunk())
     mutate(m)
@@ -167,10 +203,20 @@ def test_schema_violations(mutate):
     assert_kind(pack([1, 2, 3]), "schema")
 
 
-@pytest.mark.parametrize("name,shape", [
-    ("frames", [9, H, W]), ("frames", [10, H, 64]), ("speed", [9]), ("action", [8, 3]),
-    ("reward", [8, 1]), ("alpha", [8]), ("frames", [10, -1, W]), ("reward", "8"), ("reward", [8.0]),
-])
+@pytest.mark.parametrize(
+    "name,shape",
+    [
+        ("frames", [9, H, W]),
+        ("frames", [10, H, 64]),
+        ("speed", [9]),
+        ("action", [8, 3]),
+        ("reward", [8, 1]),
+        ("alpha", [8]),
+        ("frames", [10, -1, W]),
+        ("reward", "8"),
+        ("reward", [8.0]),
+    ],
+)
 def test_wrong_shapes(name, shape):
     m = as_map(make_chunk(steps=8))
     m[name]["shape"] = shape
@@ -190,9 +236,16 @@ def test_data_length_must_match_shape_and_steps_are_bounded():
     assert_kind(encode(make_chunk(steps=8)), "shape", limits=Limits(max_steps=4))
 
 
-@pytest.mark.parametrize("name,dtype", [
-    ("frames", "<f4"), ("speed", "<f8"), ("terminated", "|u1"), ("action", ">f4"), ("reward", 4),
-])
+@pytest.mark.parametrize(
+    "name,dtype",
+    [
+        ("frames", "<f4"),
+        ("speed", "<f8"),
+        ("terminated", "|u1"),
+        ("action", ">f4"),
+        ("reward", 4),
+    ],
+)
 def test_wrong_dtypes(name, dtype):
     m = as_map(make_chunk())
     m[name]["dtype"] = dtype
@@ -279,7 +332,7 @@ def _mutations(rng: random.Random, good: bytes) -> bytes:
         elif op == 1:
             data[pos:pos] = bytes(rng.randrange(256) for _ in range(rng.randint(1, 8)))
         elif op == 2 and data:
-            del data[pos:pos + rng.randint(1, 8)]
+            del data[pos : pos + rng.randint(1, 8)]
         else:
             data = data[:pos]
     return bytes(data)
@@ -302,11 +355,33 @@ def test_fuzz_only_wire_errors():
 
 
 def _random_value(rng: random.Random):
-    return rng.choice([
-        None, True, -1, 0, 2**64 - 1, -2**63, 1.5, float("nan"), float("inf"), "", "x" * 70, "a/b",
-        b"", b"\x00" * 9, [], [0, 2**62], [2**31, 2**31], [-1], [1.0], {}, {"dtype": "<f4"},
-        {"dtype": "<f4", "shape": [0, 2**40], "data": b""}, {"a": {"b": {"c": []}}},
-    ])
+    return rng.choice(
+        [
+            None,
+            True,
+            -1,
+            0,
+            2**64 - 1,
+            -(2**63),
+            1.5,
+            float("nan"),
+            float("inf"),
+            "",
+            "x" * 70,
+            "a/b",
+            b"",
+            b"\x00" * 9,
+            [],
+            [0, 2**62],
+            [2**31, 2**31],
+            [-1],
+            [1.0],
+            {},
+            {"dtype": "<f4"},
+            {"dtype": "<f4", "shape": [0, 2**40], "data": b""},
+            {"a": {"b": {"c": []}}},
+        ]
+    )
 
 
 def _structural_mutation(rng: random.Random, m: dict) -> dict:

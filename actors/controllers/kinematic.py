@@ -57,4 +57,10 @@ def drive_lap(env, controller: KinematicController, max_steps: int = 5000, **res
         alphas.append(abs(info["alpha"]))
         steps += 1
         done = terminated or truncated
-    return {"track": info["track"], "steps": steps, "lap_completed": bool(info["lap_completed"]), "max_abs_alpha": float(max(alphas)), "mean_abs_alpha": float(np.mean(alphas))}
+    return {
+        "track": info["track"],
+        "steps": steps,
+        "lap_completed": bool(info["lap_completed"]),
+        "max_abs_alpha": float(max(alphas)),
+        "mean_abs_alpha": float(np.mean(alphas)),
+    }

@@ -1,8 +1,8 @@
 """The embedded lane-driving simulator. Importing this package registers ``LaneDrive-v0``.
 
-    import gymnasium as gym, actors.envs
-    env = gym.make("LaneDrive-v0", track="test", direction="ccw")
-    envs = gym.make_vec("LaneDrive-v0", num_envs=16, vectorization_mode="vector_entry_point")
+import gymnasium as gym, actors.envs
+env = gym.make("LaneDrive-v0", track="test", direction="ccw")
+envs = gym.make_vec("LaneDrive-v0", num_envs=16, vectorization_mode="vector_entry_point")
 """
 
 import gymnasium as gym

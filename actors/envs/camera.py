@@ -35,7 +35,9 @@ class Camera:
         self._fwd = (fwd / RES).astype(np.float32)
         self._left = (left / RES).astype(np.float32)
 
-    def render(self, maps: list[RoadMap], x: np.ndarray, y: np.ndarray, theta: np.ndarray, luts: np.ndarray, out: np.ndarray) -> None:
+    def render(
+        self, maps: list[RoadMap], x: np.ndarray, y: np.ndarray, theta: np.ndarray, luts: np.ndarray, out: np.ndarray
+    ) -> None:
         """Write each car's frame into out[i], mapped through its brightness table luts[i] (n, 256)."""
         c = np.cos(theta).astype(np.float32)[:, None]
         s = np.sin(theta).astype(np.float32)[:, None]

@@ -80,8 +80,14 @@ class LaneDriveVectorEnv(VectorEnv):
 
     metadata = {"render_modes": ["rgb_array"], "render_fps": 10, "autoreset_mode": AutoresetMode.SAME_STEP}
 
-    def __init__(self, num_envs: int, render_mode: str | None = None, track_chooser: Callable[[int], str] | None = None,
-                 on_episode_end: Callable[[int, dict], None] | None = None, **kwargs: Any) -> None:
+    def __init__(
+        self,
+        num_envs: int,
+        render_mode: str | None = None,
+        track_chooser: Callable[[int], str] | None = None,
+        on_episode_end: Callable[[int, dict], None] | None = None,
+        **kwargs: Any,
+    ) -> None:
         """`track_chooser(i)`, if given, names the road for car i at each of its resets (priority track sampling);
         `on_episode_end(i, final_info_i)` is told of car i's finished episode before that car's next road is chosen."""
         self.cfg = EnvConfig.from_kwargs(**kwargs)
@@ -110,7 +116,10 @@ class LaneDriveVectorEnv(VectorEnv):
         done = terminated | truncated
         if done.any():
             final_obs = self.sim.observation()
-            infos["final_obs"] = np.array([{k: v[i] for k, v in final_obs.items()} if done[i] else None for i in range(self.num_envs)], dtype=object)
+            infos["final_obs"] = np.array(
+                [{k: v[i] for k, v in final_obs.items()} if done[i] else None for i in range(self.num_envs)],
+                dtype=object,
+            )
             infos["_final_obs"] = done.copy()
             infos["final_info"] = {k: v.copy() for k, v in infos.items() if not k.startswith("_") and k != "final_obs"}
             infos["_final_info"] = done.copy()

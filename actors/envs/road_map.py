@@ -102,7 +102,9 @@ def build_road_map(track: Track, lane_width: float, damage: DamageConfig, seed: 
     def cells(offsets: np.ndarray, mask: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
         cc, nn = (c, normal) if mask is None else (c[mask], normal[mask])
         p = cc[:, None, :] + offsets[None, :, None] * nn[:, None, :]
-        return ((p[..., 0] - lo[0]) / RES).astype(np.int64).ravel(), ((p[..., 1] - lo[1]) / RES).astype(np.int64).ravel()
+        return ((p[..., 0] - lo[0]) / RES).astype(np.int64).ravel(), ((p[..., 1] - lo[1]) / RES).astype(
+            np.int64
+        ).ravel()
 
     road_x, road_y = cells(np.arange(-(half + SHOULDER), half + SHOULDER + 1e-9, step))
     # Give every tile the road touches its own copy of its grass tile, then paint into those copies.
@@ -114,7 +116,9 @@ def build_road_map(track: Track, lane_width: float, damage: DamageConfig, seed: 
 
     def paint(x: np.ndarray, y: np.ndarray, value: np.ndarray | int) -> None:
         tid = table.ravel()[(y >> TILE_BITS) * cols + (x >> TILE_BITS)]
-        flat_tiles[(tid.astype(np.int64) << (2 * TILE_BITS)) | ((y & (TILE - 1)) << TILE_BITS) | (x & (TILE - 1))] = value
+        flat_tiles[(tid.astype(np.int64) << (2 * TILE_BITS)) | ((y & (TILE - 1)) << TILE_BITS) | (x & (TILE - 1))] = (
+            value
+        )
 
     paint(road_x, road_y, (ASPHALT + rng.normal(0, 3.0, road_x.shape)).clip(0, 255).astype(np.uint8))
     band = np.arange(-MARKING_WIDTH / 2, MARKING_WIDTH / 2 + 1e-9, step)
@@ -134,5 +138,9 @@ def build_road_map(track: Track, lane_width: float, damage: DamageConfig, seed: 
         centre = c[k] + rng.uniform(-half * 0.8, half * 0.8) * normal[k]
         d = np.array([math.cos(ang), math.sin(ang)])
         p = centre[None, None, :] + along[:, None, None] * d + band[None, :, None] * np.array([-d[1], d[0]])
-        paint(((p[..., 0] - lo[0]) / RES).astype(np.int64).ravel(), ((p[..., 1] - lo[1]) / RES).astype(np.int64).ravel(), MARKING)
+        paint(
+            ((p[..., 0] - lo[0]) / RES).astype(np.int64).ravel(),
+            ((p[..., 1] - lo[1]) / RES).astype(np.int64).ravel(),
+            MARKING,
+        )
     return RoadMap(tiles, table, float(lo[0]), float(lo[1]))

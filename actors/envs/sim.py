@@ -119,7 +119,14 @@ class LaneDriveSim:
         self._locate(i)
         self.travelled[i] = 0.0
         self.path[i] = [(self.x[i], self.y[i])]
-        self.camera.render([self.maps[i]], self.x[i : i + 1], self.y[i : i + 1], self.theta[i : i + 1], self.luts[i : i + 1], self.frames[i : i + 1, 0])
+        self.camera.render(
+            [self.maps[i]],
+            self.x[i : i + 1],
+            self.y[i : i + 1],
+            self.theta[i : i + 1],
+            self.luts[i : i + 1],
+            self.frames[i : i + 1, 0],
+        )
         self.frames[i, 1] = self.frames[i, 0]
 
     # -- dynamics -----------------------------------------------------------------------

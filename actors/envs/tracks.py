@@ -72,7 +72,10 @@ def build_centreline(name: str, segments: list[dict], spacing: float = SAMPLE_SP
         if seg["type"] == "straight":
             length, k = float(seg["length"]), 0.0
         elif seg["type"] == "arc":
-            length, k = float(seg["radius"]) * abs(float(seg["angle"])), math.copysign(1.0 / float(seg["radius"]), seg["angle"])
+            length, k = (
+                float(seg["radius"]) * abs(float(seg["angle"])),
+                math.copysign(1.0 / float(seg["radius"]), seg["angle"]),
+            )
         else:
             raise ValueError(f"track {name}: unknown segment type {seg['type']!r}")
         ds = np.arange(0.0, length, spacing / 4)  # fine sub-samples, resampled evenly below

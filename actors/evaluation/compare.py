@@ -22,12 +22,20 @@ import numpy as np  # noqa: E402
 
 from actors.evaluation.report import COLUMNS  # noqa: E402
 
-CURVES = [("reward_per_s", "test reward /s"), ("jerkiness_angular", "angular jerkiness"),
-          ("jerkiness_longitudinal", "longitudinal jerkiness"), ("episode_length", "episode length (steps)"),
-          ("offcenteredness", "lane centeredness |alpha|"), ("lap_completed", "test laps completed (fraction)")]
-FINALS = [("last", "clean", "last checkpoint, test roads"), ("last", "damaged", "last checkpoint, test roads, damaged lane markings"),
-          ("selected", "clean", "validation-selected policy, test roads"),
-          ("selected", "damaged", "validation-selected policy, test roads, damaged lane markings")]
+CURVES = [
+    ("reward_per_s", "test reward /s"),
+    ("jerkiness_angular", "angular jerkiness"),
+    ("jerkiness_longitudinal", "longitudinal jerkiness"),
+    ("episode_length", "episode length (steps)"),
+    ("offcenteredness", "lane centeredness |alpha|"),
+    ("lap_completed", "test laps completed (fraction)"),
+]
+FINALS = [
+    ("last", "clean", "last checkpoint, test roads"),
+    ("last", "damaged", "last checkpoint, test roads, damaged lane markings"),
+    ("selected", "clean", "validation-selected policy, test roads"),
+    ("selected", "damaged", "validation-selected policy, test roads, damaged lane markings"),
+]
 
 
 def load(runs: Path) -> dict[str, list[dict]]:
@@ -49,7 +57,9 @@ def final_table(per: dict[str, list[dict]], which: str, condition: str, referenc
         cells = [f"{np.mean([m[k] for m in means]):.3f} ± {np.std([m[k] for m in means]):.3f}" for k, _, _ in COLUMNS]
         lines.append(f"| {variant} | {len(means)} | " + " | ".join(cells) + " |")
     if reference is not None:
-        lines.append("| kinematic controller | - | " + " | ".join(f"{reference[condition][k]:.3f}" for k, _, _ in COLUMNS) + " |")
+        lines.append(
+            "| kinematic controller | - | " + " | ".join(f"{reference[condition][k]:.3f}" for k, _, _ in COLUMNS) + " |"
+        )
     return lines
 
 
@@ -59,29 +69,39 @@ def staying_good(record: dict) -> dict:
     n = len(evals[0]["drives"]) if evals else 12
     laps = [round(e["mean"]["lap_completed"] * len(e["drives"])) for e in evals]
     first = next((i for i, x in enumerate(laps) if x == n), None)
-    after = laps[first + 1:] if first is not None else []
+    after = laps[first + 1 :] if first is not None else []
     last = record.get("last") or {}
     clean = last.get("clean", {})
-    return {"seed": record["seed"], "minutes_to_all_laps": evals[first]["minute"] if first is not None else None,
-            "updates_to_all_laps": evals[first]["updates"] if first is not None else None,
-            "last_laps": round(clean["mean"]["lap_completed"] * len(clean["drives"])) if clean else None,
-            "last_near_out_of_lane": clean.get("mean", {}).get("near_out_of_lane"),
-            "last_offcenteredness": clean.get("mean", {}).get("offcenteredness"),
-            "evaluations_after": len(after), "fraction_after_with_11": (sum(x >= n - 1 for x in after) / len(after)) if after else None,
-            "selected_laps": (round(record["selected"]["clean"]["mean"]["lap_completed"] * n) if record.get("selected") else None),
-            "laps_per_evaluation": laps}
+    return {
+        "seed": record["seed"],
+        "minutes_to_all_laps": evals[first]["minute"] if first is not None else None,
+        "updates_to_all_laps": evals[first]["updates"] if first is not None else None,
+        "last_laps": round(clean["mean"]["lap_completed"] * len(clean["drives"])) if clean else None,
+        "last_near_out_of_lane": clean.get("mean", {}).get("near_out_of_lane"),
+        "last_offcenteredness": clean.get("mean", {}).get("offcenteredness"),
+        "evaluations_after": len(after),
+        "fraction_after_with_11": (sum(x >= n - 1 for x in after) / len(after)) if after else None,
+        "selected_laps": (
+            round(record["selected"]["clean"]["mean"]["lap_completed"] * n) if record.get("selected") else None
+        ),
+        "laps_per_evaluation": laps,
+    }
 
 
 def staying_good_table(per: dict[str, list[dict]]) -> list[str]:
-    lines = ["| method | seed | min to all 12 laps | last checkpoint laps | its near-out-of-lane | its mean abs(alpha) | evals after | share >= 11 | validation-selected laps |",
-             "|" + " --- |" * 9]
+    lines = [
+        "| method | seed | min to all 12 laps | last checkpoint laps | its near-out-of-lane | its mean abs(alpha) | evals after | share >= 11 | validation-selected laps |",
+        "|" + " --- |" * 9,
+    ]
     fmt = lambda x, f="{:.2f}": "-" if x is None else f.format(x)  # noqa: E731
     for variant, records in per.items():
         for r in records:
             s = staying_good(r)
-            lines.append(f"| {variant} | {s['seed']} | {fmt(s['minutes_to_all_laps'], '{:.1f}')} | {fmt(s['last_laps'], '{}')} | "
-                         f"{fmt(s['last_near_out_of_lane'], '{:.3f}')} | {fmt(s['last_offcenteredness'], '{:.3f}')} | {s['evaluations_after']} | "
-                         f"{fmt(s['fraction_after_with_11'])} | {fmt(s['selected_laps'], '{}')} |")
+            lines.append(
+                f"| {variant} | {s['seed']} | {fmt(s['minutes_to_all_laps'], '{:.1f}')} | {fmt(s['last_laps'], '{}')} | "
+                f"{fmt(s['last_near_out_of_lane'], '{:.3f}')} | {fmt(s['last_offcenteredness'], '{:.3f}')} | {s['evaluations_after']} | "
+                f"{fmt(s['fraction_after_with_11'])} | {fmt(s['selected_laps'], '{}')} |"
+            )
     return lines
 
 
@@ -95,7 +115,11 @@ def curve_figures(per: dict[str, list[dict]], out: Path) -> list[Path]:
                 continue
             steps = np.array(sorted({e["updates"] for s in series for e in s}))
             steps = steps[steps <= min(s[-1]["updates"] for s in series)]  # where every seed has data
-            metric = (lambda e: float(np.mean([d[key] for d in e["drives"]]))) if key == "episode_length" else (lambda e: e["mean"][key])
+            metric = (
+                (lambda e: float(np.mean([d[key] for d in e["drives"]])))
+                if key == "episode_length"
+                else (lambda e: e["mean"][key])
+            )
             grid = np.array([np.interp(steps, [e["updates"] for e in s], [metric(e) for e in s]) for s in series])
             mean, std = grid.mean(0), grid.std(0)
             ax.plot(steps, mean, label=f"{variant} ({len(series)})")
@@ -124,14 +148,21 @@ def lane_figure(per: dict[str, list[dict]], out: Path) -> Path | None:
             for j, r in enumerate(records):
                 trace = (r.get("last") or {}).get("clean", {}).get("traces", {}).get(track)
                 if trace:
-                    ax.plot(trace["progress"], trace["alpha"], color=colours[variant], lw=0.7, alpha=0.7, label=variant if j == 0 else None)
+                    ax.plot(
+                        trace["progress"],
+                        trace["alpha"],
+                        color=colours[variant],
+                        lw=0.7,
+                        alpha=0.7,
+                        label=variant if j == 0 else None,
+                    )
         ax.axhline(0.75, color="r", ls=":", lw=0.8)
         ax.axhline(-0.75, color="r", ls=":", lw=0.8)
         ax.set_ylim(-1.1, 1.1)
         ax.set_xlim(0.0, 1.0)  # the whole lap, so where a drive ended shows
         ax.set_title(track, fontsize=9)
         ax.set_xlabel("lap progress", fontsize=8)
-    for ax in list(axes.flat)[len(drives):]:
+    for ax in list(axes.flat)[len(drives) :]:
         ax.axis("off")
     axes.flat[0].legend(fontsize=6)
     fig.suptitle("lane centeredness alpha along each test road, last checkpoints (one line per seed)", fontsize=10)
@@ -153,8 +184,10 @@ def reference(runs: Path) -> dict:
     from actors.evaluation.main import DEFAULT_DAMAGE
     from actors.evaluation.policies import kinematic_policy
 
-    ref = {"clean": summary(evaluate(kinematic_policy())),
-           "damaged": summary(evaluate(kinematic_policy(), damage=dataclasses.asdict(DEFAULT_DAMAGE)))}
+    ref = {
+        "clean": summary(evaluate(kinematic_policy())),
+        "damaged": summary(evaluate(kinematic_policy(), damage=dataclasses.asdict(DEFAULT_DAMAGE))),
+    }
     path.write_text(json.dumps(ref))
     return ref
 
@@ -163,7 +196,10 @@ def compare(runs: Path, out: Path, with_reference: bool = True) -> Path:
     out.mkdir(parents=True, exist_ok=True)
     per = load(runs)
     ref = reference(runs) if with_reference else None
-    lines = [f"Built by `python -m actors.evaluation.compare {runs}` from {sum(map(len, per.values()))} run summaries.", ""]
+    lines = [
+        f"Built by `python -m actors.evaluation.compare {runs}` from {sum(map(len, per.values()))} run summaries.",
+        "",
+    ]
     for which, condition, title in FINALS:
         lines += [f"### {title}", "", *final_table(per, which, condition, ref), ""]
     lines += ["### staying good (every run)", "", *staying_good_table(per), ""]

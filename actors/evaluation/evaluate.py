@@ -17,7 +17,9 @@ PolicyFn = Callable[[dict, dict], np.ndarray]
 TRACE = ("reward", "speed", "alpha", "beta", "progress", "action")
 
 
-def evaluate(policy: PolicyFn, split: str = "test", directions=("ccw", "cw"), tracks: list[str] | None = None, **env_kwargs) -> list[dict]:
+def evaluate(
+    policy: PolicyFn, split: str = "test", directions=("ccw", "cw"), tracks: list[str] | None = None, **env_kwargs
+) -> list[dict]:
     """One lap of every road of `split` (or the named `tracks`) in each direction; returns per drive
     its metrics and per-step trace (alpha, beta, speed, actions, progress).
 
@@ -38,13 +40,17 @@ def evaluate(policy: PolicyFn, split: str = "test", directions=("ccw", "cw"), tr
         terminated, truncated = sim.step(actions)  # finished cars drive on, unrecorded
         for i in np.flatnonzero(running):
             infos[i] = info = sim.info(i)
-            for key, value in zip(TRACE, (sim.reward[i], info["speed"], info["alpha"], info["beta"], info["progress"], actions[i])):
+            for key, value in zip(
+                TRACE, (sim.reward[i], info["speed"], info["alpha"], info["beta"], info["progress"], actions[i])
+            ):
                 traces[i][key].append(value)
             running[i] = not (terminated[i] or truncated[i] or info["lap_completed"])
     results = []
     for (_, d), info, trace in zip(drives, infos, traces):
         trace = {k: np.asarray(v, np.float32) for k, v in trace.items()}
-        metrics = drive_metrics(trace["reward"], trace["speed"], trace["alpha"], trace["beta"], trace["action"], info["lap_completed"])
+        metrics = drive_metrics(
+            trace["reward"], trace["speed"], trace["alpha"], trace["beta"], trace["action"], info["lap_completed"]
+        )
         results.append({"track": info["track"], "direction": d, "metrics": metrics, "trace": trace})
     return results
 

@@ -37,13 +37,22 @@ def collect(n_envs: int, n_steps: int, seed: int, sigma: float = 0.1) -> TensorD
                 final[key][i] = next_info["final_obs"][i][key]
             final_alpha[i] = next_info["final_info"]["alpha"][i]
             final_beta[i] = next_info["final_info"]["beta"][i]
-        steps.append({
-            **obs, "alpha": _column(info["alpha"]), "beta": _column(info["beta"]),
-            "action": action,
-            "next": {**final, "alpha": _column(final_alpha), "beta": _column(final_beta),
-                     "reward": _column(reward), "terminated": terminated.reshape(-1, 1),
-                     "truncated": truncated.reshape(-1, 1)},
-        })
+        steps.append(
+            {
+                **obs,
+                "alpha": _column(info["alpha"]),
+                "beta": _column(info["beta"]),
+                "action": action,
+                "next": {
+                    **final,
+                    "alpha": _column(final_alpha),
+                    "beta": _column(final_beta),
+                    "reward": _column(reward),
+                    "terminated": terminated.reshape(-1, 1),
+                    "truncated": truncated.reshape(-1, 1),
+                },
+            }
+        )
         noise.reset(done)
         obs, info = next_obs, next_info
     td = TensorDict(_stack(steps), batch_size=[n_steps, n_envs])
@@ -51,13 +60,23 @@ def collect(n_envs: int, n_steps: int, seed: int, sigma: float = 0.1) -> TensorD
 
 
 def _stack(steps: list[dict]) -> dict:
-    return {k: _stack([s[k] for s in steps]) if isinstance(v, dict)
-            else torch.as_tensor(np.stack([s[k] for s in steps])) for k, v in steps[0].items()}
+    return {
+        k: _stack([s[k] for s in steps]) if isinstance(v, dict) else torch.as_tensor(np.stack([s[k] for s in steps]))
+        for k, v in steps[0].items()
+    }
 
 
-def tau_returns(n_states: int, gammas: list[float], seed: int, sigma: float = 0.1,
-                width: float = 0.1, horizon: int = 150, every: int = 10, terminal: str = "zero",
-                track: str = "train") -> tuple[TensorDict, torch.Tensor]:
+def tau_returns(
+    n_states: int,
+    gammas: list[float],
+    seed: int,
+    sigma: float = 0.1,
+    width: float = 0.1,
+    horizon: int = 150,
+    every: int = 10,
+    terminal: str = "zero",
+    track: str = "train",
+) -> tuple[TensorDict, torch.Tensor]:
     """Observations of states visited by the behaviour, and one rollout's return under tau.
 
     From every `every`-th state the simulator is copied and driven by tau (actions drawn
@@ -95,11 +114,9 @@ def tau_returns(n_states: int, gammas: list[float], seed: int, sigma: float = 0.
                 ended = True
                 break
         signals, n = np.asarray(signals), len(signals)
-        tail = (lambda g, c: g ** n * signals[-1, c]) if ended and terminal == "absorbing" else (lambda g, c: 0.0)
-        row = [sum((1 - g) * g ** k * signals[k, c] for k in range(n)) + tail(g, c)
-               for c in range(2) for g in gammas]
+        tail = (lambda g, c: g**n * signals[-1, c]) if ended and terminal == "absorbing" else (lambda g, c: 0.0)
+        row = [sum((1 - g) * g**k * signals[k, c] for k in range(n)) + tail(g, c) for c in range(2) for g in gammas]
         observations.append({k: torch.as_tensor(v) for k, v in obs.items()})
         returns.append(row)
-    obs_td = TensorDict({k: torch.stack([o[k] for o in observations]) for k in observations[0]},
-                        batch_size=[n_states])
+    obs_td = TensorDict({k: torch.stack([o[k] for o in observations]) for k in observations[0]}, batch_size=[n_states])
     return obs_td, torch.tensor(returns, dtype=torch.float32)

@@ -43,7 +43,9 @@ def run_eval(cfg: RunConfig, out_dir: str | Path) -> list[Path]:
     if cfg.eval.video:
         from actors.evaluation.video import record_lap, write_video
 
-        frames, _ = record_lap(policy, results[0]["track"].removesuffix("-r"), results[0]["direction"], **eval_env_kwargs(cfg))
+        frames, _ = record_lap(
+            policy, results[0]["track"].removesuffix("-r"), results[0]["direction"], **eval_env_kwargs(cfg)
+        )
         files.append(write_video(frames, Path(out_dir) / "lap.gif"))
     if cfg.eval.runs:
         runs = sorted({p.parent for p in Path(cfg.eval.runs).glob("**/eval.jsonl")})

@@ -18,9 +18,9 @@ from pathlib import Path
 from torch.utils.tensorboard import SummaryWriter
 
 from actors.acting import Acting
+from actors.envs.tracks import track_names
 from actors.evaluation.evaluate import evaluate, summary
 from actors.evaluation.main import eval_env_kwargs
-from actors.envs.tracks import track_names
 from actors.evaluation.policies import network_policy
 from common import checkpoint, wire
 from common.config.run import RunConfig
@@ -40,14 +40,22 @@ def validation_tracks(names: list[str]) -> list[str]:
     library = set(track_names("all"))
     bad = [n for n in names if n.removesuffix("-r") in library]
     if bad or not names:
-        raise ValueError(f"eval.validation_tracks must be roads neither train nor test (procedural:SEED), got {list(names)}")
+        raise ValueError(
+            f"eval.validation_tracks must be roads neither train nor test (procedural:SEED), got {list(names)}"
+        )
     return list(names)
 
 
 def validate(policy, cfg: RunConfig) -> dict:
     """Mean metrics of `policy` on the validation roads: what selects the best policy."""
-    return summary(evaluate(policy, directions=tuple(cfg.eval.directions), tracks=validation_tracks(cfg.eval.validation_tracks),
-                            **eval_env_kwargs(cfg)))
+    return summary(
+        evaluate(
+            policy,
+            directions=tuple(cfg.eval.directions),
+            tracks=validation_tracks(cfg.eval.validation_tracks),
+            **eval_env_kwargs(cfg),
+        )
+    )
 
 
 def save_best(path: Path, acting: Acting, cfg: RunConfig, updates: int, validation: dict, test: dict) -> None:
@@ -69,7 +77,9 @@ def run_evaluator(cfg: RunConfig, t, run_dir: str | Path, stop: threading.Event)
     due = every
     best_path = Path(run_dir) / "checkpoints" / BEST
     validation_tracks(cfg.eval.validation_tracks)  # a bad list is refused before any drive
-    best = checkpoint.load(best_path).get("validation") if best_path.exists() else None  # a restarted evaluator keeps the bar
+    best = (
+        checkpoint.load(best_path).get("validation") if best_path.exists() else None
+    )  # a restarted evaluator keeps the bar
     try:
         weights_in = t.subscribe(keys.subscribe("weights", "evaluator"), capacity=1, overflow="drop_old")
         while not stop.is_set():
@@ -77,7 +87,8 @@ def run_evaluator(cfg: RunConfig, t, run_dir: str | Path, stop: threading.Event)
             msg = rejects.decode(got.payload, expect=wire.Weights, key=got.key) if got is not None else None
             if msg is None or msg.version < due:
                 continue
-            acting.load(msg)
+            if not acting.adopt(msg, rejects, got.key):
+                continue  # counted: a set that does not fit this policy is never driven
             policy = network_policy(acting.policy, acting.lowdim)
             results = evaluate(policy, cfg.eval.split, tuple(cfg.eval.directions), **eval_env_kwargs(cfg))
             mean, val = summary(results), validate(policy, cfg)
@@ -86,12 +97,28 @@ def run_evaluator(cfg: RunConfig, t, run_dir: str | Path, stop: threading.Event)
             for key in ("lap_completed", "reward_per_s"):
                 writer.add_scalar(f"eval/validation_{key}", val[key], msg.version)
             writer.flush()
-            drives = [{"track": r["track"], **r["metrics"], "end_progress": float(r["trace"]["progress"][-1]) if len(r["trace"]["progress"]) else 0.0}
-                      for r in results]
+            drives = [
+                {
+                    "track": r["track"],
+                    **r["metrics"],
+                    "end_progress": float(r["trace"]["progress"][-1]) if len(r["trace"]["progress"]) else 0.0,
+                }
+                for r in results
+            ]
             with open(Path(run_dir) / "eval.jsonl", "a") as f:
-                f.write(json.dumps({"updates": msg.version, "time": time.time(), "mean": mean, "validation": val, "drives": drives}) + "\n")
-            log.info("eval at %d updates: laps %.0f%% (validation %.0f%%), reward/s %.3f", msg.version, 100 * mean["lap_completed"],
-                     100 * val["lap_completed"], mean["reward_per_s"])
+                f.write(
+                    json.dumps(
+                        {"updates": msg.version, "time": time.time(), "mean": mean, "validation": val, "drives": drives}
+                    )
+                    + "\n"
+                )
+            log.info(
+                "eval at %d updates: laps %.0f%% (validation %.0f%%), reward/s %.3f",
+                msg.version,
+                100 * mean["lap_completed"],
+                100 * val["lap_completed"],
+                mean["reward_per_s"],
+            )
             if better(val, best):
                 save_best(best_path, acting, cfg, msg.version, val, mean)
                 best = val

@@ -49,4 +49,8 @@ def checkpoint_policy(path: str | Path):
     agent, scale = _known(AgentConfig, state["agent"]), _known(ScaleConfig, state["scale"])
     policy = make_policy(agent, scale).eval()
     policy.load_state_dict(state["policy"])
-    return network_policy(policy, agent.representation == "lowdim"), {"path": str(path), "agent": agent.name, "updates": state["core"]["updates"]}
+    return network_policy(policy, agent.representation == "lowdim"), {
+        "path": str(path),
+        "agent": agent.name,
+        "updates": state["core"]["updates"],
+    }

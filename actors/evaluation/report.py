@@ -14,12 +14,18 @@ import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 
 COLUMNS = [  # (metric, header, arrow) as in the paper's tables
-    ("reward_per_s", "Reward /s", "↑"), ("average_speed", "Average speed (m/s)", "↑"),
-    ("offcenteredness", "Offcenteredness", "↓"), ("abs_road_angle", "Absolute road angle", "↓"),
-    ("near_out_of_lane", "Near out of lane", "↓"), ("comfort1_speed", "Speed comfort (1st)", "↑"),
-    ("comfort2_speed", "Speed comfort (2nd)", "↑"), ("comfort1_steering", "Steering comfort (1st)", "↑"),
-    ("comfort2_steering", "Steering comfort (2nd)", "↑"), ("jerkiness_angular", "Angular jerkiness", "↓"),
-    ("jerkiness_longitudinal", "Longitudinal jerkiness", "↓"), ("lap_completed", "Lap", "↑"),
+    ("reward_per_s", "Reward /s", "↑"),
+    ("average_speed", "Average speed (m/s)", "↑"),
+    ("offcenteredness", "Offcenteredness", "↓"),
+    ("abs_road_angle", "Absolute road angle", "↓"),
+    ("near_out_of_lane", "Near out of lane", "↓"),
+    ("comfort1_speed", "Speed comfort (1st)", "↑"),
+    ("comfort2_speed", "Speed comfort (2nd)", "↑"),
+    ("comfort1_steering", "Steering comfort (1st)", "↑"),
+    ("comfort2_steering", "Steering comfort (2nd)", "↑"),
+    ("jerkiness_angular", "Angular jerkiness", "↓"),
+    ("jerkiness_longitudinal", "Longitudinal jerkiness", "↓"),
+    ("lap_completed", "Lap", "↑"),
 ]
 
 
@@ -28,7 +34,14 @@ def markdown_table(rows: list[tuple[str, dict]]) -> str:
     head = "| | " + " | ".join(f"{h} {a}" for _, h, a in COLUMNS) + " |"
     lines = [head, "|" + " --- |" * (len(COLUMNS) + 1)]
     for label, m in rows:
-        lines.append(f"| {label} | " + " | ".join(f"{m[k]:.4f}" if k != "lap_completed" else ("yes" if m[k] >= 1 else f"{m[k]:.0%}") for k, _, _ in COLUMNS) + " |")
+        lines.append(
+            f"| {label} | "
+            + " | ".join(
+                f"{m[k]:.4f}" if k != "lap_completed" else ("yes" if m[k] >= 1 else f"{m[k]:.0%}")
+                for k, _, _ in COLUMNS
+            )
+            + " |"
+        )
     return "\n".join(lines)
 
 
@@ -39,10 +52,26 @@ def write_report(results: list[dict], out_dir: str | Path, title: str) -> list[P
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
     mean = summary(results)
-    (out / "eval.json").write_text(json.dumps({"title": title, "mean": mean, "drives": [{"track": r["track"], "direction": r["direction"], "metrics": r["metrics"]} for r in results]}, indent=1))
+    (out / "eval.json").write_text(
+        json.dumps(
+            {
+                "title": title,
+                "mean": mean,
+                "drives": [
+                    {"track": r["track"], "direction": r["direction"], "metrics": r["metrics"]} for r in results
+                ],
+            },
+            indent=1,
+        )
+    )
     rows = [(f"{r['track']}", r["metrics"]) for r in results] + [("**mean**", mean)]
     (out / "eval.md").write_text(f"# {title}\n\n{markdown_table(rows)}\n")
-    return [out / "eval.json", out / "eval.md", lane_figure(results, out / "lane_centeredness.png"), histogram_figure(results, out / "distributions.png", title)]
+    return [
+        out / "eval.json",
+        out / "eval.md",
+        lane_figure(results, out / "lane_centeredness.png"),
+        histogram_figure(results, out / "distributions.png", title),
+    ]
 
 
 def lane_figure(results: list[dict], path: Path) -> Path:
@@ -68,8 +97,13 @@ def lane_figure(results: list[dict], path: Path) -> Path:
 
 def histogram_figure(results: list[dict], path: Path, title: str) -> Path:
     cat = {k: np.concatenate([r["trace"][k] for r in results]) for k in ("alpha", "beta", "speed", "action")}
-    panels = [("lane centeredness alpha", cat["alpha"]), ("road angle beta (rad)", cat["beta"]), ("speed (m/s)", cat["speed"]),
-              ("steering action", cat["action"][:, 0]), ("target speed action", cat["action"][:, 1])]
+    panels = [
+        ("lane centeredness alpha", cat["alpha"]),
+        ("road angle beta (rad)", cat["beta"]),
+        ("speed (m/s)", cat["speed"]),
+        ("steering action", cat["action"][:, 0]),
+        ("target speed action", cat["action"][:, 1]),
+    ]
     fig, axes = plt.subplots(1, len(panels), figsize=(3.2 * len(panels), 2.6))
     for ax, (label, values) in zip(axes, panels):
         ax.hist(values, bins=40, density=True)
@@ -92,8 +126,14 @@ def learning_curves(run_dirs: list[Path], path: Path) -> Path | None:
         return None
     steps = sorted({e["updates"] for s in series for e in s})
     fig, axes = plt.subplots(1, 3, figsize=(12, 3))
-    for ax, key, label in zip(axes, ("reward_per_s", "jerkiness_angular", "jerkiness_longitudinal"), ("test reward /s", "angular jerkiness", "longitudinal jerkiness")):
-        grid = np.array([[np.interp(x, [e["updates"] for e in s], [e["mean"][key] for e in s]) for x in steps] for s in series])
+    for ax, key, label in zip(
+        axes,
+        ("reward_per_s", "jerkiness_angular", "jerkiness_longitudinal"),
+        ("test reward /s", "angular jerkiness", "longitudinal jerkiness"),
+    ):
+        grid = np.array(
+            [[np.interp(x, [e["updates"] for e in s], [e["mean"][key] for e in s]) for x in steps] for s in series]
+        )
         mean, std = grid.mean(0), grid.std(0)
         ax.plot(steps, mean)
         ax.fill_between(steps, mean - std, mean + std, alpha=0.3)

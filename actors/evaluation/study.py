@@ -78,17 +78,31 @@ def summarize(run_dir: Path, start: float, job: dict) -> dict:
     eval_file = run_dir / "eval.jsonl"
     for line in eval_file.read_text().splitlines() if eval_file.exists() else []:
         e = json.loads(line)
-        evaluations.append({
-            "updates": e["updates"], "minute": round((e["time"] - start) / 60, 2) if "time" in e else None,
-            "mean": e["mean"], "validation": e.get("validation"),
-            "drives": [{"track": d["track"], **{k: d[k] for k in (*DRIVE_KEYS, "end_progress") if k in d}} for d in e["drives"]],
-        })
+        evaluations.append(
+            {
+                "updates": e["updates"],
+                "minute": round((e["time"] - start) / 60, 2) if "time" in e else None,
+                "mean": e["mean"],
+                "validation": e.get("validation"),
+                "drives": [
+                    {"track": d["track"], **{k: d[k] for k in (*DRIVE_KEYS, "end_progress") if k in d}}
+                    for d in e["drives"]
+                ],
+            }
+        )
     progress = json.loads((run_dir / "progress.json").read_text()) if (run_dir / "progress.json").exists() else {}
-    return {**job, "progress": progress, "evaluations": evaluations,
-            "last": final_drives(run_dir / "checkpoints"), "selected": final_drives(run_dir / "checkpoints" / BEST, traces=False)}
+    return {
+        **job,
+        "progress": progress,
+        "evaluations": evaluations,
+        "last": final_drives(run_dir / "checkpoints"),
+        "selected": final_drives(run_dir / "checkpoints" / BEST, traces=False),
+    }
 
 
-def run_job(variant: str, seed: int, minutes: float, eval_every: int, out: Path, work: Path, overrides: list[str]) -> Path:
+def run_job(
+    variant: str, seed: int, minutes: float, eval_every: int, out: Path, work: Path, overrides: list[str]
+) -> Path:
     """One training run and its summary; skipped if the summary exists."""
     path = summary_path(out, variant, seed)
     if path.exists():
@@ -96,16 +110,38 @@ def run_job(variant: str, seed: int, minutes: float, eval_every: int, out: Path,
         return path
     run_dir = work / f"{variant}-seed{seed}"
     run_dir.mkdir(parents=True, exist_ok=True)
-    cmd = [str(BIN / "gvf-train"), f"agent={variant}", "scale=small", "actors.count=2", "progress=false",
-           f"run=study-{variant}-{seed}", f"seed={seed}", f"max_seconds={minutes * 60:.0f}",
-           f"eval.every_updates={eval_every}", f"hydra.run.dir={run_dir}", *overrides]
+    cmd = [
+        str(BIN / "gvf-train"),
+        f"agent={variant}",
+        "scale=small",
+        "actors.count=2",
+        "progress=false",
+        f"run=study-{variant}-{seed}",
+        f"seed={seed}",
+        f"max_seconds={minutes * 60:.0f}",
+        f"eval.every_updates={eval_every}",
+        f"hydra.run.dir={run_dir}",
+        *overrides,
+    ]
     print(f"run {variant} seed {seed} for {minutes} min in {run_dir}", flush=True)
     start = time.time()
     with open(run_dir / "train.out", "wb") as log:
-        subprocess.run(cmd, stdout=log, stderr=subprocess.STDOUT, timeout=minutes * 60 + 600,
-                       env={**os.environ, "OMP_NUM_THREADS": "1"}, check=True)
-    job = {"variant": variant, "seed": seed, "minutes": minutes, "eval_every": eval_every, "overrides": overrides,
-           "wall_minutes": round((time.time() - start) / 60, 2)}
+        subprocess.run(
+            cmd,
+            stdout=log,
+            stderr=subprocess.STDOUT,
+            timeout=minutes * 60 + 600,
+            env={**os.environ, "OMP_NUM_THREADS": "1"},
+            check=True,
+        )
+    job = {
+        "variant": variant,
+        "seed": seed,
+        "minutes": minutes,
+        "eval_every": eval_every,
+        "overrides": overrides,
+        "wall_minutes": round((time.time() - start) / 60, 2),
+    }
     record = summarize(run_dir, start, job)
     path.parent.mkdir(parents=True, exist_ok=True)
     tmp = path.with_suffix(".tmp")
@@ -126,7 +162,9 @@ def main() -> None:
     args = parser.parse_args()
     for seed in args.seeds:  # seed-major: a partial study has every variant at its first seeds
         for variant in args.variants:
-            print(run_job(variant, seed, args.minutes, args.eval_every, args.out, args.work, args.overrides), flush=True)
+            print(
+                run_job(variant, seed, args.minutes, args.eval_every, args.out, args.work, args.overrides), flush=True
+            )
 
 
 if __name__ == "__main__":

@@ -23,12 +23,13 @@ def frame(sim: LaneDriveSim) -> np.ndarray:
     half = SIZE // 2
     panel = np.zeros((half, camera.shape[1], 3), np.uint8)
     top = (half - camera.shape[0]) // 2
-    panel[top:top + camera.shape[0]] = camera[..., None]
+    panel[top : top + camera.shape[0]] = camera[..., None]
     return np.concatenate([render_topdown(sim, 0)[::2, ::2], panel], axis=1)
 
 
-def record_lap(policy: PolicyFn, track: str, direction: str = "ccw", every: int = 3, max_steps: int = 1200,
-               **env_kwargs) -> tuple[list[np.ndarray], bool]:
+def record_lap(
+    policy: PolicyFn, track: str, direction: str = "ccw", every: int = 3, max_steps: int = 1200, **env_kwargs
+) -> tuple[list[np.ndarray], bool]:
     """Frames of one noise-free lap (every `every`-th step) from the start line, and whether it was completed."""
     sim = LaneDriveSim(EnvConfig.from_kwargs(lighting=False, **env_kwargs), 1)
     sim.reset(0, np.random.default_rng(0), {"track": track, "direction": direction, "random_start": False})
@@ -37,7 +38,9 @@ def record_lap(policy: PolicyFn, track: str, direction: str = "ccw", every: int 
         if step % every == 0:
             frames.append(frame(sim))
         info = sim.info(0)
-        action = np.asarray(policy(sim.observation(), {k: np.array([v]) for k, v in info.items()}), np.float32).reshape(1, 2)
+        action = np.asarray(policy(sim.observation(), {k: np.array([v]) for k, v in info.items()}), np.float32).reshape(
+            1, 2
+        )
         terminated, truncated = sim.step(action)
         lapped = bool(sim.info(0)["lap_completed"])
         if terminated[0] or truncated[0] or lapped:

@@ -121,8 +121,7 @@ STEP_SIZES = ("discount", "target_update", "lr_actor", "lr_critic", "lr_gvf", "l
 
 def step_sizes(agent: AgentConfig, scale: ScaleConfig) -> dict[str, float]:
     """Learning rates, soft-update rate and discount in force: the agent's where set, else the scale's."""
-    return {name: getattr(scale, name) if getattr(agent, name) is None else getattr(agent, name)
-            for name in STEP_SIZES}
+    return {name: getattr(scale, name) if getattr(agent, name) is None else getattr(agent, name) for name in STEP_SIZES}
 
 
 def actor_squash(agent: AgentConfig, scale: ScaleConfig) -> str:

@@ -79,6 +79,8 @@ class LearnerConfig:
     """Publish the global track table this often."""
     ingest_batch: int = 64
     """Most chunks decoded and inserted per loop iteration."""
+    max_tracks: int = 1024
+    """Most roads in the global track table; episode summaries naming more are refused (kind 'track')."""
     max_chunk_bytes: int = 16 * 1024 * 1024
     """Largest transition chunk accepted; bigger ones are counted (kind 'size') and dropped."""
     inbox_chunks: int = 512

@@ -6,11 +6,28 @@ the one a config names, so that `transport=inproc` and most tests never load zen
 from __future__ import annotations
 
 from common.config.transport import TransportConfig
-from common.transport.interface import (AliveWatcher, LatestValue, Publisher, Received, Subscription,
-                                        Token, Transport, check_congestion)
+from common.transport.interface import (
+    AliveWatcher,
+    LatestValue,
+    Publisher,
+    Received,
+    Subscription,
+    Token,
+    Transport,
+    check_congestion,
+)
 
-__all__ = ["AliveWatcher", "LatestValue", "Publisher", "Received", "Subscription", "Token", "Transport",
-           "check_congestion", "make_transport"]
+__all__ = [
+    "AliveWatcher",
+    "LatestValue",
+    "Publisher",
+    "Received",
+    "Subscription",
+    "Token",
+    "Transport",
+    "check_congestion",
+    "make_transport",
+]
 
 
 def make_transport(cfg: TransportConfig, bus: object | None = None, stop: object | None = None) -> Transport:

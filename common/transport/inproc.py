@@ -14,8 +14,7 @@ from collections import Counter
 
 from common.config.transport import TransportConfig
 from common.keys import key_matches
-from common.transport.interface import (AliveWatcher, LatestValue, Received, Subscription, Token,
-                              check_congestion)
+from common.transport.interface import AliveWatcher, LatestValue, Received, Subscription, Token, check_congestion
 from common.wire import WireError
 
 
@@ -136,8 +135,7 @@ class InprocTransport:
     def publisher(self, key: str, *, congestion: str = "block") -> InprocPublisher:
         return InprocPublisher(self.bus, key, check_congestion(congestion), self.cfg.max_message_size)
 
-    def subscribe(self, key_expr: str, *, capacity: int | None = None,
-                  overflow: str = "drop_new") -> Subscription:
+    def subscribe(self, key_expr: str, *, capacity: int | None = None, overflow: str = "drop_new") -> Subscription:
         sub = self._own(Subscription(key_expr, capacity or self.cfg.inbox_capacity, overflow))
         self.bus.add_sub(sub)
         sub._on_close = lambda: self.bus.remove_sub(sub)

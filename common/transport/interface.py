@@ -113,8 +113,7 @@ class AliveWatcher:
     were dropped because the inbox overflowed, the set is rebuilt with `resync`.
     """
 
-    def __init__(self, key_expr: str, capacity: int = 1024,
-                 resync: Callable[[], set[str]] | None = None) -> None:
+    def __init__(self, key_expr: str, capacity: int = 1024, resync: Callable[[], set[str]] | None = None) -> None:
         self.key_expr = key_expr
         self.events: BoundedInbox[tuple[str, bool]] = BoundedInbox(capacity)
         self._resync = resync
@@ -170,8 +169,7 @@ class Transport(Protocol):
     def publisher(self, key: str, *, congestion: str = "block") -> Publisher:
         """A publisher on concrete `key`; congestion 'block' (default) or 'drop'."""
 
-    def subscribe(self, key_expr: str, *, capacity: int | None = None,
-                  overflow: str = "drop_new") -> Subscription:
+    def subscribe(self, key_expr: str, *, capacity: int | None = None, overflow: str = "drop_new") -> Subscription:
         """Start receiving puts matching `key_expr` into a bounded inbox of `capacity`."""
 
     def serve_latest(self, key: str) -> LatestValue:

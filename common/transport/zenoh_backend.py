@@ -17,7 +17,6 @@ Facts this module is built on (checked with eclipse-zenoh 1.10.2, see DESIGN.md)
 from __future__ import annotations
 
 import dataclasses
-
 import json
 import logging
 import signal
@@ -28,8 +27,7 @@ import zenoh
 
 from common.config.transport import TransportConfig
 from common.transport.inbox import BoundedInbox
-from common.transport.interface import (AliveWatcher, LatestValue, Received, Subscription, Token,
-                              check_congestion)
+from common.transport.interface import AliveWatcher, LatestValue, Received, Subscription, Token, check_congestion
 from common.wire import WireError
 
 log = logging.getLogger(__name__)
@@ -39,8 +37,9 @@ QUERY_BACKLOG = 64
 """Queries for a latest value waiting for the server thread; more are dropped (unanswered)."""
 
 
-def zenoh_config(cfg: TransportConfig, *, mode: str | None = None, listen: list[str] | None = None,
-                 connect: list[str] | None = None) -> zenoh.Config:
+def zenoh_config(
+    cfg: TransportConfig, *, mode: str | None = None, listen: list[str] | None = None, connect: list[str] | None = None
+) -> zenoh.Config:
     """The zenoh.Config of `cfg`: its file, then its fields (mode/listen/connect overridable), overrides."""
     mode = mode or cfg.mode
     if mode not in MODES:
@@ -137,7 +136,8 @@ class ZenohTransport:
                 if not forever or (stop is not None and stop.is_set()):
                     # callers retry on ConnectionError without importing zenoh
                     raise ConnectionError(
-                        f"cannot open a zenoh session ({cfg.mode}, connect={cfg.connect}): {exc}") from exc
+                        f"cannot open a zenoh session ({cfg.mode}, connect={cfg.connect}): {exc}"
+                    ) from exc
         self._owned: list = []
         self._closed = False
 
@@ -151,13 +151,11 @@ class ZenohTransport:
 
     def publisher(self, key: str, *, congestion: str = "block") -> ZenohPublisher:
         self._check_open()
-        cc = zenoh.CongestionControl.BLOCK if check_congestion(congestion) == "block" \
-            else zenoh.CongestionControl.DROP
+        cc = zenoh.CongestionControl.BLOCK if check_congestion(congestion) == "block" else zenoh.CongestionControl.DROP
         pub = self.session.declare_publisher(key, congestion_control=cc)
         return self._own(ZenohPublisher(pub, key, self.cfg.max_message_size))
 
-    def subscribe(self, key_expr: str, *, capacity: int | None = None,
-                  overflow: str = "drop_new") -> Subscription:
+    def subscribe(self, key_expr: str, *, capacity: int | None = None, overflow: str = "drop_new") -> Subscription:
         self._check_open()
         sub = Subscription(key_expr, capacity or self.cfg.inbox_capacity, overflow)
 
@@ -227,8 +225,7 @@ class ZenohTransport:
 
 def open_router(cfg: TransportConfig) -> zenoh.Session:
     """A Zenoh session in router mode on `cfg.router_listen` (and `cfg.router_connect`)."""
-    return zenoh.open(zenoh_config(cfg, mode="router", listen=cfg.router_listen,
-                                   connect=cfg.router_connect))
+    return zenoh.open(zenoh_config(cfg, mode="router", listen=cfg.router_listen, connect=cfg.router_connect))
 
 
 def run_router(cfg: TransportConfig, stop: Any = None, ready: Any = None) -> None:

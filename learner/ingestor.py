@@ -1,0 +1,110 @@
+"""The learner's intake, free of training: decode and check what arrived, count what was lost
+or refused, and turn the good chunks into one batch of replay transitions.
+
+Per `take`: at most `ingest_batch` transition chunks and 1024 episode summaries are drained;
+a payload that fails the wire checks or the rules of `common.wire_rules` (sender, value ranges,
+`seq`) is counted by kind and dropped: it never reaches the replay. Per-actor sequence numbers
+count lost chunks and announced restarts (`SequenceTracker`); at most `max_tracks` roads enter
+the track table (more are refused as kind 'track'); the
+policy lag of each chunk (updates now minus the version that acted) is kept for the progress
+view; episode summaries feed the global track table (n_i per road) and the mean return; the
+first whole episode of one env is kept as the held-out trajectory of the prediction metric.
+"""
+
+from __future__ import annotations
+
+import logging
+from collections import deque
+
+import numpy as np
+from tensordict import TensorDict
+
+from common import wire
+from common.wire_rules import SequenceTracker, check_chunk, check_episode
+from learner.ingest import chunks_to_transitions
+
+log = logging.getLogger(__name__)
+
+
+class Ingestor:
+    """Decode, check and account; see the module docstring."""
+
+    def __init__(self, max_chunk_bytes: int, ingest_batch: int, max_tracks: int = 1024) -> None:
+        self.ingest_batch, self.max_tracks = ingest_batch, max_tracks
+        self.rejects = wire.RejectCounter(wire.Limits(max_bytes=max_chunk_bytes), logger=log)
+        self.seq = SequenceTracker()
+        self.tracks: dict[str, int] = {}
+        self.returns: deque = deque(maxlen=100)
+        self.lags: deque = deque(maxlen=200)
+        self.counters = {"inserted": 0, "episodes": 0, "chunks": 0}
+        self.held_out: TensorDict | None = None
+        """The first whole episode of one env (time-ordered transitions), once complete."""
+        self._held: dict | None = None
+
+    def take(self, chunks_in, episodes_in, updates: int) -> TensorDict | None:
+        """The transitions of the good chunks waiting in `chunks_in` (next state: its new frame
+        only, as the replay stores it), or None; episode summaries are applied on the way."""
+        good = []
+        for r in chunks_in.drain(self.ingest_batch):
+            chunk = self.rejects.decode(r.payload, expect=wire.TransitionChunk, key=r.key)
+            if chunk is None or not self._obeys(
+                lambda: (check_chunk(chunk, r.key), self.seq.see(chunk.actor, chunk.seq)), r.key
+            ):
+                continue  # counted by kind and dropped
+            self.lags.append(max(0, updates - chunk.policy_version))  # chunks of a previous epoch can be ahead
+            self._hold_out(chunk)
+            good.append(chunk)
+        for r in episodes_in.drain(1024):
+            ep = self.rejects.decode(r.payload, expect=wire.EpisodeSummary, key=r.key)
+            if ep is not None and self._obeys(lambda: (check_episode(ep, r.key), self._check_room(ep.track)), r.key):
+                self.tracks[ep.track.removesuffix("-r")] = ep.steps
+                self.returns.append(ep.episode_return)
+                self.counters["episodes"] += 1
+        if not good:
+            return None
+        batch = chunks_to_transitions(good, next_image=False)
+        self.counters["inserted"] += batch.shape[0]
+        self.counters["chunks"] += len(good)
+        return batch
+
+    def _obeys(self, rules, key: str) -> bool:
+        """Run `rules`; a broken one is counted under its kind (the message is then dropped)."""
+        try:
+            rules()
+        except wire.WireError as err:
+            self.rejects.reject(err, key)
+            return False
+        return True
+
+    def _check_room(self, track: str) -> None:
+        if track.removesuffix("-r") not in self.tracks and len(self.tracks) >= self.max_tracks:
+            raise wire.WireError("track", f"track table full ({self.max_tracks} roads): {track[:64]!r} refused")
+
+    def mean_chunk_steps(self) -> float:
+        """Steps per chunk so far (1 before any): what an undecoded chunk in the inbox is worth."""
+        return self.counters["inserted"] / self.counters["chunks"] if self.counters["chunks"] else 1.0
+
+    def _hold_out(self, chunk: wire.TransitionChunk) -> None:
+        if self._held is None:
+            self._held = {"key": (chunk.actor, chunk.env, chunk.episode), "chunks": []}
+        if self._held.get("done") or (chunk.actor, chunk.env, chunk.episode) != self._held["key"]:
+            return
+        self._held["chunks"].append(chunk)
+        if chunk.terminated[-1] or chunk.truncated[-1]:
+            self._held["done"] = True
+            self.held_out = chunks_to_transitions(self._held["chunks"])
+
+    def progress(self) -> dict:
+        """The intake's part of progress.json."""
+        return {
+            "inserted": self.counters["inserted"],
+            "chunks": self.counters["chunks"],
+            "episodes": self.counters["episodes"],
+            "return_mean": float(np.mean(self.returns)) if self.returns else None,
+            "policy_lag": float(np.mean(self.lags)) if self.lags else None,
+            "lost_chunks": self.seq.lost,
+            "actor_restarts": self.seq.restarts,
+            "rejected": self.rejects.total,
+            "rejected_by_kind": dict(self.rejects.counts),
+            "actors_seen": sorted(self.seq.expected),
+        }
