@@ -4,10 +4,17 @@
 #   OUTDIR/ca.pem, ca.key          the CA (ca.key stays on the machine that signs; never distribute it)
 #   OUTDIR/router.pem, router.key  the router's certificate: subjectAltName localhost, 127.0.0.1 and
 #                                  every NAME given (DNS names, or IP addresses), serverAuth+clientAuth
-#   OUTDIR/client.pem, client.key  one certificate shared by learner and actors (clientAuth), for mTLS
+#   OUTDIR/client.pem, client.key  a client certificate (clientAuth) that names no role: mTLS without
+#                                  access control (router-tls.json5)
+#   OUTDIR/learner.pem, evaluator.pem, operator.pem (+ .key)
+#                                  one identity per role, common names gvf-learner, gvf-evaluator and
+#                                  gvf-operator (gvfctl): what the access-control router config
+#                                  (deploy/make_acl.py) grants rights to
+#   OUTDIR/actor-NAME.pem, .key    one per actor NAME in $ACTORS (default "actor-0 actor-1"), common
+#                                  name gvf-actor-NAME: an actor may publish only under its own name
 #
-# Usage: deploy/make_test_certs.sh OUTDIR [NAME ...]
-#   e.g. deploy/make_test_certs.sh /etc/gvf/tls router.example.org 192.0.2.1
+# Usage: [ACTORS="a0 a1 ..."] deploy/make_test_certs.sh OUTDIR [NAME ...]
+#   e.g. ACTORS="h1-a0 h1-a1" deploy/make_test_certs.sh /etc/gvf/tls router.example.org 192.0.2.1
 #
 # NAME is how the learner and actors reach the router (the host of `transport.connect=[tls/NAME:7447]`):
 # a client checks that the router's certificate names it (Zenoh's verify_name_on_connect).
@@ -76,6 +83,14 @@ sign() {
 # the router also authenticates as a client when it connects to other routers (router_connect)
 sign router gvf-router "serverAuth,clientAuth" "$san"
 sign client gvf-client "clientAuth" "DNS:gvf-client"
-chmod 644 "$out/ca.pem" "$out/router.pem" "$out/client.pem"
+for role in learner evaluator operator; do
+    sign "$role" "gvf-$role" "clientAuth" "DNS:gvf-$role"
+done
+actors=${ACTORS:-actor-0 actor-1}
+for name in $actors; do
+    [[ $name =~ ^[A-Za-z0-9_.-]{1,64}$ ]] || { echo "$0: bad actor name $name" >&2; exit 2; }
+    sign "actor-$name" "gvf-actor-$name" "clientAuth" "DNS:gvf-actor-$name"
+done
+chmod 644 "$out"/*.pem
 
-echo "wrote $out/{ca,router,client}.{pem,key}; router names: $san"
+echo "wrote $out/{ca,router,client,learner,evaluator,operator}.{pem,key} and actor-{${actors// /,}}.{pem,key}; router names: $san"
