@@ -28,6 +28,7 @@ from actors.envs.lane_drive import LaneDriveVectorEnv
 from actors.envs.tracks import track_names
 from actors.sender import Sender
 from actors.track_sampling import PriorityTrackSampler
+from actors.weights_client import WeightsClient
 from common import wire
 from common.config.run import RunConfig
 from common.keys import Keys
@@ -92,7 +93,7 @@ def run_actor(cfg: RunConfig, t, stop: threading.Event, env_factory=make_env) ->
     stats = {"env_steps": 0, "episodes": 0, "chunks": 0, "weights_loaded": 0, "paused_s": 0.0}
     try:
         t.declare_alive(keys.publish("alive", ROLE, role=ROLE, name=a.name))
-        weights_in = t.subscribe(keys.subscribe("weights", ROLE), capacity=1, overflow="drop_old")
+        weights = WeightsClient(t, keys, ROLE, acting, rejects, fetch_timeout_s=a.weights_poll_s)
         tracks_in = t.subscribe(keys.subscribe("tracks", ROLE), capacity=1, overflow="drop_old")
         control_in = t.subscribe(keys.subscribe("control", ROLE), capacity=16)
         flow_in = t.subscribe(keys.subscribe("flow", ROLE), capacity=1, overflow="drop_old")
@@ -100,12 +101,7 @@ def run_actor(cfg: RunConfig, t, stop: threading.Event, env_factory=make_env) ->
         episodes_out = t.publisher(keys.publish("episodes", ROLE, actor=a.name))
 
         def poll_weights(block_s: float = 0.0) -> None:
-            got = weights_in.get(timeout=block_s) if block_s else weights_in.get(timeout=0)
-            payload = got.payload if got is not None else None
-            if payload is None and not acting.ready:
-                payload = t.fetch(keys.weights, timeout=a.weights_poll_s)
-            msg = rejects.decode(payload, expect=wire.Weights, key=keys.weights) if payload is not None else None
-            if msg is not None and acting.adopt(msg, rejects, keys.weights):
+            if weights.poll(timeout=block_s) is not None:
                 stats["weights_loaded"] += 1
 
         paused = False

@@ -167,6 +167,7 @@ def weights_actor_main(tcfg: TransportConfig, run: str, name: str, agent, scale,
     import torch
 
     from actors.acting import Acting
+    from actors.weights_client import WeightsClient
     from common.transport.zenoh_backend import ZenohTransport
 
     torch.set_num_threads(1)
@@ -178,17 +179,12 @@ def weights_actor_main(tcfg: TransportConfig, run: str, name: str, agent, scale,
         while not join.wait(0.2):
             if stop.is_set():
                 return
-        # as the real actor: capacity 1, a newer broadcast replaces an unread one
-        weights_in = t.subscribe(Keys(run).weights, capacity=1, overflow="drop_old")
+        # as the real actor (actors.weights_client): capacity 1, a newer broadcast replaces an unread one
+        weights = WeightsClient(t, Keys(run), "actor", acting, rejects, fetch=False)
         while not stop.is_set():
-            if (r := weights_in.get(timeout=0.2)) is None:
+            if (msg := weights.poll(timeout=0.2)) is None:
                 continue
-            received = time.time()
-            msg = rejects.decode(r.payload, expect=wire.Weights, key=r.key)
-            if msg is None:
-                continue
-            acting.load(msg)
-            loaded = time.time()
+            received, loaded = weights.received_at, time.time()
             acks.put(
                 json.dumps(
                     {

@@ -7,7 +7,7 @@ import threading
 import numpy as np
 
 from actors.evaluation.evaluate import evaluate
-from actors.evaluation.periodic import better
+from actors.evaluation.periodic import better, selection_key
 from actors.evaluation.policies import checkpoint_policy, kinematic_policy
 from common.launch import train
 from tests.helpers import BIN, TINY, compose_run
@@ -36,11 +36,15 @@ def test_drives_run_together_give_what_each_gives_alone():
     assert len(together[0]["trace"]["alpha"]) != len(together[2]["trace"]["alpha"])  # laps of unequal length
 
 
-def test_the_best_evaluation_is_the_one_with_most_laps_then_reward_per_second():
-    assert better({"lap_completed": 0.0, "reward_per_s": 1.0}, None)
-    assert better({"lap_completed": 0.5, "reward_per_s": 1.0}, {"lap_completed": 0.25, "reward_per_s": 9.0})
-    assert better({"lap_completed": 0.5, "reward_per_s": 2.0}, {"lap_completed": 0.5, "reward_per_s": 1.0})
-    assert not better({"lap_completed": 0.5, "reward_per_s": 1.0}, {"lap_completed": 0.5, "reward_per_s": 1.0})
+def test_the_best_evaluation_has_most_laps_then_least_near_out_of_lane_then_reward_per_second():
+    def v(laps, near_out, reward):
+        return {"lap_completed": laps, "near_out_of_lane": near_out, "reward_per_s": reward}
+
+    assert better(v(0.0, 0.5, 1.0), None)
+    assert better(v(0.5, 0.2, 1.0), v(0.25, 0.0, 9.0))  # laps first
+    assert better(v(0.5, 0.01, 1.0), v(0.5, 0.02, 9.0))  # then the safer, though slower
+    assert better(v(0.5, 0.01, 2.0), v(0.5, 0.01, 1.0))  # then reward per second
+    assert not better(v(0.5, 0.01, 1.0), v(0.5, 0.01, 1.0))  # the first of equals is kept
 
 
 def test_validation_selection_never_evaluates_a_test_road(monkeypatch):
@@ -101,9 +105,7 @@ def test_short_training_then_eval_and_comparison_of_its_checkpoint_write_tables_
     train(cfg, str(run_dir), stop)
     lines = [json.loads(x) for x in (run_dir / "eval.jsonl").read_text().splitlines()]
     assert lines and lines[0]["updates"] >= 20 and len(lines[0]["drives"]) == 6  # periodic evaluation ran
-    best = max(
-        lines, key=lambda x: (x["validation"]["lap_completed"], x["validation"]["reward_per_s"])
-    )  # chosen on validation
+    best = max(lines, key=lambda x: selection_key(x["validation"]))  # chosen on validation (first of equals)
     _, meta = checkpoint_policy(run_dir / "checkpoints" / "best-policy.pt")
     assert meta["updates"] == best["updates"] and meta["agent"] == "gvf_ddpg"  # the best evaluation's policy is kept
     out = tmp_path / "eval"

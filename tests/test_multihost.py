@@ -112,3 +112,102 @@ def test_router_learner_and_two_actors_in_three_namespaces(namespaces, tmp_path)
     finally:
         for proc in reversed(procs):
             stop(proc)
+
+
+def test_secured_router_across_namespaces_refuses_an_intruder_with_an_actor_identity(namespaces, tmp_path):
+    """deploy/make_acl.py's router in ns R; the learner in ns L; an actor and an intruder holding
+    another actor's certificate in ns A. The intruder's stop, pause and weights reach nobody."""
+    r, ln, a = namespaces
+    if shutil.which("openssl") is None:
+        pytest.skip("openssl not installed (apt-get install openssl)")
+    certs, endpoint = tmp_path / "certs", "tls/192.0.2.1:7447"
+    env = {"ACTORS": "far-0 intruded", "PATH": "/usr/bin:/bin"}
+    subprocess.run(
+        ["bash", "deploy/make_test_certs.sh", str(certs), "192.0.2.1"], check=True, capture_output=True, env=env
+    )
+
+    def config(name, *args):
+        text = subprocess.run(
+            [str(BIN / "python"), "deploy/make_acl.py", *args, "--certs", str(certs)],
+            check=True,
+            capture_output=True,
+            text=True,
+        ).stdout
+        (tmp_path / f"{name}.json5").write_text(text)
+        return tmp_path / f"{name}.json5"
+
+    router_cfg = config("router", "--run", "secured", "--actors", "far-0", "intruded")
+    common = [*TINY, f"transport.connect=[{endpoint}]", "run=secured"]
+    procs = []
+    try:
+        procs.append(
+            in_ns(
+                r,
+                "gvf-router",
+                [
+                    f"transport.router_listen=[{endpoint}]",
+                    f"transport.zenoh_config_file={router_cfg}",
+                    f"hydra.run.dir={tmp_path}/router",
+                ],
+                tmp_path / "router.log",
+            )
+        )
+        time.sleep(1.5)
+        procs.append(
+            in_ns(
+                ln,
+                "gvf-learner",
+                [
+                    *common,
+                    f"transport.zenoh_config_file={config('learner', '--client', 'learner')}",
+                    f"hydra.run.dir={tmp_path}/learner",
+                ],
+                tmp_path / "learner.log",
+            )
+        )
+        actor = in_ns(
+            a,
+            "gvf-actor",
+            [
+                *common,
+                f"transport.zenoh_config_file={config('actor', '--client', 'actor-far-0')}",
+                "actor.name=far-0",
+                "actor.max_env_steps=3000",
+                f"hydra.run.dir={tmp_path}/a0",
+            ],
+            tmp_path / "actor.log",
+        )
+        procs.append(actor)
+        intruder_cfg = config("intruder", "--client", "actor-intruded")
+        script = (
+            "import sys, time, zenoh\n"
+            "from common import wire\n"
+            "from common.config.transport import TransportConfig\n"
+            "from common.transport.zenoh_backend import zenoh_config\n"
+            f"cfg = TransportConfig(mode='client', connect=['{endpoint}'], zenoh_config_file='{intruder_cfg}')\n"
+            "with zenoh.open(zenoh_config(cfg)) as s:\n"
+            "    for _ in range(60):\n"
+            "        s.put('gvf/secured/control', wire.encode(wire.Control('stop')))\n"
+            "        s.put('gvf/secured/flow', wire.encode(wire.Control('pause')))\n"
+            "        s.put('gvf/secured/weights', b'forged')\n"
+            "        time.sleep(0.5)\n"
+        )
+        intruder = subprocess.Popen(
+            ["ip", "netns", "exec", a, str(BIN / "python"), "-c", script],
+            stdout=open(tmp_path / "intruder.log", "wb"),
+            stderr=subprocess.STDOUT,
+        )
+        procs.append(intruder)
+        actor.wait(240)
+        assert actor.returncode == 0, (tmp_path / "actor.log").read_text()[-2000:]
+        stats = json.loads((tmp_path / "actor.log").read_text().strip().splitlines()[-1])
+        assert (
+            stats["env_steps"] >= 3000 and stats["policy_version"] > 0 and stats["rejected"] == 0
+        )  # no forged weights arrived
+        # its stop would have ended the actor at once, before max_env_steps, and the learner too
+        assert procs[1].poll() is None
+        progress = json.loads((tmp_path / "learner" / "progress.json").read_text())
+        assert progress["updates"] > 0 and progress["actors_seen"] == ["far-0"]
+    finally:
+        for proc in reversed(procs):
+            stop(proc)
