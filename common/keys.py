@@ -143,10 +143,6 @@ class Keys:
             return f"{self.root}/alive/**"
         return f"{self.root}/alive/{check_name(role, 'role')}/*"
 
-    def last_chunk(self, key: str) -> str:
-        """The final chunk of a concrete key, e.g. the actor name of a transitions key."""
-        return key.rsplit("/", 1)[-1]
-
     def publish(self, name: str, by: str, /, **fields: str) -> str:
         """The concrete key role `by` publishes route `name` on; refused if the wiring table says
         `by` does not publish it (e.g. publish('transitions', 'actor', actor='a3'))."""

@@ -1,9 +1,13 @@
 """transport=inproc: every role a thread of one process over the in-process transport."""
 
+import re
 import threading
+from pathlib import Path
 
 from common.launch import train
 from tests.helpers import TINY, compose_run
+
+ROOT = Path(__file__).resolve().parents[1]
 
 
 def test_inproc_run_trains_in_one_process_and_stops_by_itself_at_max_updates(tmp_path):
@@ -17,6 +21,9 @@ def test_inproc_run_trains_in_one_process_and_stops_by_itself_at_max_updates(tmp
         watchdog.cancel()
     assert not stop.is_set(), "the run did not end at learner.max_updates"
     assert not [t.name for t in threading.enumerate() if t.name in ("learner", "actor-0")]  # every role stopped
+    watch = (ROOT / "docs" / "wire.md").read_text().split("## What an outside sender can watch")[1].split("##")[0]
+    fields = set(re.findall(r"`([a-z_]+)`", watch.split("On the wire")[0])) - {"progress"}
+    assert fields and fields <= set(result), fields - set(result)  # docs/wire.md names real progress fields
     assert result["updates"] >= 30
     assert result["inserted"] >= 64 and result["episodes"] > 0
     assert result["rejected"] == 0 and result["lost_chunks"] == 0
