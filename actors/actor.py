@@ -81,15 +81,6 @@ def run_actor(cfg: RunConfig, t, stop: threading.Event, env_factory=make_env) ->
     sender = Sender(a.send_queue, a.send_timeout_s)
     rejects = wire.RejectCounter()
 
-    def obeys(rule, key: str) -> bool:
-        """Run a content rule (common.wire_rules); a broken one is counted and its message dropped."""
-        try:
-            rule()
-        except wire.WireError as err:
-            rejects.reject(err, key)
-            return False
-        return True
-
     stats = {"env_steps": 0, "episodes": 0, "chunks": 0, "weights_loaded": 0, "paused_s": 0.0}
     try:
         t.declare_alive(keys.publish("alive", ROLE, role=ROLE, name=a.name))
@@ -141,7 +132,7 @@ def run_actor(cfg: RunConfig, t, stop: threading.Event, env_factory=make_env) ->
             poll_weights()
             r = tracks_in.get(timeout=0)
             table = rejects.decode(r.payload, expect=wire.TrackTable, key=r.key) if r is not None and sampled else None
-            if table is not None and obeys(lambda: check_tracks(table, known_roads), r.key):
+            if table is not None and rejects.obeys(lambda: check_tracks(table, known_roads), r.key):
                 sampler.update(table.steps)
             actions = acting.act(obs, info)
             next_obs, reward, term, trunc, info = env.step(actions)

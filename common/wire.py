@@ -387,6 +387,16 @@ class RejectCounter:
             # once per kind: a hostile or broken sender must not flood the log
             self._log.warning("dropped a bad message on %r (first of kind %r): %s", key, err.kind, err)
 
+    def obeys(self, rule, key: str = "") -> bool:
+        """Run `rule()` (e.g. a content rule of `common.wire_rules`); a WireError it raises is
+        counted like a refused payload and False returned (the message is then dropped)."""
+        try:
+            rule()
+        except WireError as err:
+            self.reject(err, key)
+            return False
+        return True
+
     def decode(self, payload: bytes, expect: type | None = None, key: str = "") -> Message | None:
         """`decode(payload)`, or None after counting and (once per kind) logging the refusal."""
         try:

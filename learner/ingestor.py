@@ -47,7 +47,7 @@ class Ingestor:
         good = []
         for r in chunks_in.drain(self.ingest_batch):
             chunk = self.rejects.decode(r.payload, expect=wire.TransitionChunk, key=r.key)
-            if chunk is None or not self._obeys(
+            if chunk is None or not self.rejects.obeys(
                 lambda: (check_chunk(chunk, r.key), self.seq.see(chunk.actor, chunk.seq)), r.key
             ):
                 continue  # counted by kind and dropped
@@ -56,7 +56,9 @@ class Ingestor:
             good.append(chunk)
         for r in episodes_in.drain(1024):
             ep = self.rejects.decode(r.payload, expect=wire.EpisodeSummary, key=r.key)
-            if ep is not None and self._obeys(lambda: (check_episode(ep, r.key), self._check_room(ep.track)), r.key):
+            if ep is not None and self.rejects.obeys(
+                lambda: (check_episode(ep, r.key), self._check_room(ep.track)), r.key
+            ):
                 self.tracks[ep.track.removesuffix("-r")] = ep.steps
                 self.returns.append(ep.episode_return)
                 self.counters["episodes"] += 1
@@ -66,15 +68,6 @@ class Ingestor:
         self.counters["inserted"] += batch.shape[0]
         self.counters["chunks"] += len(good)
         return batch
-
-    def _obeys(self, rules, key: str) -> bool:
-        """Run `rules`; a broken one is counted under its kind (the message is then dropped)."""
-        try:
-            rules()
-        except wire.WireError as err:
-            self.rejects.reject(err, key)
-            return False
-        return True
 
     def _check_room(self, track: str) -> None:
         if track.removesuffix("-r") not in self.tracks and len(self.tracks) >= self.max_tracks:
