@@ -7,7 +7,7 @@ discriminator for the incoming transitions and stores them in the shared replay.
 
   rho_bar <- mean rho in D                                          (line 11)
   A ~ D with probability rho_i / sum rho_j                         (line 12)
-  U ~ D uniformly                                                   (line 15)
+  U ~ D uniformly (and the crash memory, scale.crash_memory)        (line 15)
   GVF TD step on A, targets from v(s') without gradient             (lines 13-14)
   discriminator BCE step on U, half of its actions replaced by eta  (lines 16-17)
   DDPG step on U with phi = [v(s), speed, last action], detached    (section 3)
@@ -44,7 +44,7 @@ from learner.ddpg import DDPG
 from learner.gvf import cumulants, expand_gammas, gvf_loss, importance_ratio, log_tau, td_target
 from learner.metrics import prediction_error
 from learner.mirror import mirror
-from learner.replay import ImportanceResamplingReplay, compact, expand
+from learner.replay import CrashMemory, ImportanceResamplingReplay, compact, expand, sample_uniform_with
 
 OBS_KEYS = ("image", "speed", "last_action")
 RHO_SLICE = 256
@@ -77,6 +77,7 @@ class LearningCore:
         self.predictive = self.nets.representation == "predictive"
         # the replay stays in host memory (torchrl's sum tree is CPU-only); batches move over
         self.replay = ImportanceResamplingReplay(scale.buffer_size if buffer_size is None else buffer_size, seed=seed)
+        self.crashes = CrashMemory(scale.crash_memory) if scale.crash_memory else None
         self.generator = torch.Generator().manual_seed(seed)
         steps = step_sizes(agent, scale)
         if self.predictive:
@@ -140,7 +141,7 @@ class LearningCore:
     def _warm_start(self) -> None:
         """g alone on the warm-up data, then every rho recomputed with it (module docstring)."""
         for _ in range(self.agent.behaviour_warmup_updates):
-            uniform = self._mirrored(expand(self.replay.sample_uniform(self.batch_size)).to(self.device))
+            uniform = self._uniform()
             loss = behaviour_loss(self.nets.behaviour, _obs(uniform), uniform["action"], self.generator)
             self.behaviour_optimizer.zero_grad(set_to_none=True)
             loss.backward()
@@ -159,6 +160,18 @@ class LearningCore:
         else:
             rho = torch.ones(transitions.shape[0], 1, device=self.device)
         self.replay.extend(compact(transitions, rho).to("cpu"))
+
+    def add_crashes(self, transitions: TensorDictBase) -> None:
+        """Keep copies of the steps before terminations in the crash memory (`scale.crash_memory`;
+        without one they are already in the replay through `add` and nothing more is done)."""
+        if self.crashes is not None:
+            rho = torch.ones(transitions.shape[0], 1)  # never sampled by rho
+            self.crashes.extend(compact(transitions, rho).to("cpu"))
+
+    def _uniform(self) -> TensorDictBase:
+        """The uniform minibatch U (replay and crash memory together), expanded and mirrored."""
+        stored = sample_uniform_with(self.replay, self.crashes, self.batch_size)
+        return self._mirrored(expand(stored).to(self.device))
 
     @property
     def ready(self) -> bool:
@@ -180,7 +193,7 @@ class LearningCore:
         every = self.agent.rho_refresh_every
         if self.predictive and every and self.updates and self.updates % every == 0:
             self.refresh_all_rho()
-        uniform = self._mirrored(expand(self.replay.sample_uniform(self.batch_size)).to(self.device))
+        uniform = self._uniform()
         losses: dict[str, Tensor] = {}
         if self.predictive:
             ddpg_batch = self._predictive_step(uniform, losses)
@@ -303,6 +316,8 @@ class LearningCore:
         metrics["train/q_min"], metrics["train/q_max"] = float(q.min()), float(q.max())
         metrics["train/updates"] = float(self.updates)
         metrics["train/replay_size"] = float(len(self.replay))
+        if self.crashes is not None:
+            metrics["train/crash_memory_size"] = float(len(self.crashes))
         metrics["train/skipped_nonfinite"] = float(self.skipped_nonfinite)
         if self.predictive:
             metrics["train/rho_bar"] = self.replay.rho_bar
@@ -340,6 +355,8 @@ class LearningCore:
             state["behaviour_optimizer"] = self.behaviour_optimizer.state_dict()
         if with_replay:
             state["replay"] = self.replay.state_dict()
+            if self.crashes is not None:
+                state["crashes"] = self.crashes.state_dict()
         return state
 
     def load_state_dict(self, state: dict[str, Any]) -> None:
@@ -354,3 +371,5 @@ class LearningCore:
             self.behaviour_optimizer.load_state_dict(state["behaviour_optimizer"])
         if "replay" in state:
             self.replay.load_state_dict(state["replay"])
+        if "crashes" in state and self.crashes is not None:
+            self.crashes.load_state_dict(state["crashes"])

@@ -9,6 +9,11 @@ the track table (more are refused as kind 'track'); the
 policy lag of each chunk (updates now minus the version that acted) is kept for the progress
 view; episode summaries feed the global track table (n_i per road) and the mean return; the
 first whole episode of one env is kept as the held-out trajectory of the prediction metric.
+
+With `crash_steps` > 0 the intake also keeps the last `crash_steps` transitions before every
+termination (across the chunk boundary: the env's previous chunk of the same episode is kept
+until its next one arrives) for the learner's crash memory (`learner.replay.CrashMemory`);
+`take_crashes` hands them over.
 """
 
 from __future__ import annotations
@@ -17,6 +22,7 @@ import logging
 from collections import deque
 
 import numpy as np
+import torch
 from tensordict import TensorDict
 
 from common import wire
@@ -24,13 +30,14 @@ from common.wire_rules import SequenceTracker, check_chunk, check_episode
 from learner.ingest import chunks_to_transitions
 
 log = logging.getLogger(__name__)
+MAX_STREAMS = 4096  # envs whose last chunk is kept for the crash memory
 
 
 class Ingestor:
     """Decode, check and account; see the module docstring."""
 
-    def __init__(self, max_chunk_bytes: int, ingest_batch: int, max_tracks: int = 1024) -> None:
-        self.ingest_batch, self.max_tracks = ingest_batch, max_tracks
+    def __init__(self, max_chunk_bytes: int, ingest_batch: int, max_tracks: int = 1024, crash_steps: int = 0) -> None:
+        self.ingest_batch, self.max_tracks, self.crash_steps = ingest_batch, max_tracks, crash_steps
         self.rejects = wire.RejectCounter(wire.Limits(max_bytes=max_chunk_bytes), logger=log)
         self.seq = SequenceTracker()
         self.tracks: dict[str, int] = {}
@@ -40,6 +47,8 @@ class Ingestor:
         self.held_out: TensorDict | None = None
         """The first whole episode of one env (time-ordered transitions), once complete."""
         self._held: dict | None = None
+        self._previous: dict[tuple[str, int], wire.TransitionChunk] = {}  # last chunk of each env
+        self._crashes: list[list[wire.TransitionChunk]] = []  # chunks ending in a termination, with their previous
 
     def take(self, chunks_in, episodes_in, updates: int) -> TensorDict | None:
         """The transitions of the good chunks waiting in `chunks_in` (next state: its new frame
@@ -53,6 +62,8 @@ class Ingestor:
                 continue  # counted by kind and dropped
             self.lags.append(max(0, updates - chunk.policy_version))  # chunks of a previous epoch can be ahead
             self._hold_out(chunk)
+            if self.crash_steps:
+                self._see_for_crashes(chunk)
             good.append(chunk)
         for r in episodes_in.drain(1024):
             ep = self.rejects.decode(r.payload, expect=wire.EpisodeSummary, key=r.key)
@@ -68,6 +79,29 @@ class Ingestor:
         self.counters["inserted"] += batch.shape[0]
         self.counters["chunks"] += len(good)
         return batch
+
+    def _see_for_crashes(self, chunk: wire.TransitionChunk) -> None:
+        stream = (chunk.actor, chunk.env)
+        before = self._previous.pop(stream, None)
+        if chunk.terminated[-1]:
+            same_episode = before is not None and before.episode == chunk.episode
+            if same_episode and before.step0 + before.num_steps == chunk.step0:
+                self._crashes.append([before, chunk])
+            else:
+                self._crashes.append([chunk])
+        elif not chunk.truncated[-1]:
+            if len(self._previous) >= MAX_STREAMS:  # bounded whatever the senders claim: forget the oldest
+                self._previous.pop(next(iter(self._previous)))
+            self._previous[stream] = chunk
+
+    def take_crashes(self) -> TensorDict | None:
+        """The last `crash_steps` transitions before each termination seen since the last call
+        (time-ordered per crash, next state as in `take`), or None."""
+        if not self._crashes:
+            return None
+        parts = [chunks_to_transitions(c, next_image=False)[-self.crash_steps :] for c in self._crashes]
+        self._crashes = []
+        return torch.cat(parts, 0) if len(parts) > 1 else parts[0]
 
     def _check_room(self, track: str) -> None:
         if track.removesuffix("-r") not in self.tracks and len(self.tracks) >= self.max_tracks:

@@ -13,6 +13,13 @@ tree (torchrl `PrioritizedSampler`, alpha = 1, beta = 0, priority = rho), so tha
 The current rho of slot i is `rho[i]` (and its priority in the sum tree); the "rho" entry
 of a stored item is the value it was inserted with.
 
+`CrashMemory` (an option beyond the paper, `scale.crash_memory`) is a second, small ring buffer of
+copies of the last steps before each termination: the main ring evicts them after ~90 s of
+experience at the small scale, and the policy's speed crept back up once the crashes it caused
+had left (docs/results.md). DDPG and the discriminator draw their uniform minibatch from both
+buffers together (`sample_uniform_with`), each item equally likely, so a crash lives as long
+as the crash memory keeps it; the GVFs' sampling by rho (eq. 5) sees the main buffer only.
+
 The storage layout of a LaneDrive transition is compact: the next observation's previous
 frame is the current frame and its last action is the action, so only the new frame is
 stored (`compact` / `expand`, 24 KiB instead of 32 KiB per transition), and frames are
@@ -121,6 +128,38 @@ class ImportanceResamplingReplay:
         self.generator.set_state(state["generator"])
         # torchrl restores its own copy of the generator: share ours again, one stream
         self.buffer.set_rng(self.generator)
+
+
+class CrashMemory:
+    """FIFO ring (torchrl `LazyTensorStorage`) of compact transitions from just before terminations."""
+
+    def __init__(self, capacity: int, *, device: str | torch.device = "cpu"):
+        self.capacity = capacity
+        self.buffer = TensorDictReplayBuffer(storage=LazyTensorStorage(capacity, device=device))
+
+    def __len__(self) -> int:
+        return len(self.buffer)
+
+    def extend(self, data: TensorDictBase) -> None:
+        for chunk in data.split(self.capacity, 0):  # one write per slot, as the main ring
+            self.buffer.extend(chunk)
+
+    def state_dict(self) -> dict[str, Any]:
+        return self.buffer.state_dict()
+
+    def load_state_dict(self, state: dict[str, Any]) -> None:
+        self.buffer.load_state_dict(state)
+
+
+def sample_uniform_with(replay: ImportanceResamplingReplay, crashes: CrashMemory | None, n: int) -> TensorDictBase:
+    """n items drawn uniformly from the main replay and the crash memory together (module docstring)."""
+    if crashes is None or not len(crashes):
+        return replay.sample_uniform(n)
+    index = torch.randint(len(replay) + len(crashes), (n,), generator=replay.generator)
+    from_crashes = index >= len(replay)
+    main = replay.buffer.storage.get(index[~from_crashes])
+    extra = crashes.buffer.storage.get(index[from_crashes] - len(replay))
+    return torch.cat([main, extra], 0)
 
 
 def _first_occurrence(index: Tensor) -> tuple[Tensor, Tensor]:

@@ -51,7 +51,8 @@ class LearnerService:
         self.core = LearningCore(cfg.agent, cfg.scale, device=resolve_device(self.lc.device), seed=cfg.seed)
         ckpt = Path(self.lc.checkpoint_dir)
         self.ckpt_dir = ckpt if ckpt.is_absolute() else self.run_dir / ckpt
-        self.intake = Ingestor(self.lc.max_chunk_bytes, self.lc.ingest_batch, self.lc.max_tracks)
+        crash_steps = cfg.scale.crash_steps if cfg.scale.crash_memory else 0
+        self.intake = Ingestor(self.lc.max_chunk_bytes, self.lc.ingest_batch, self.lc.max_tracks, crash_steps)
         self.limiter = RateLimiter(self.core.batch_size, self.lc.samples_per_insert, self.lc.max_owed_updates)
         self.flow_pauses = 0
         if cfg.resume:
@@ -134,6 +135,9 @@ class LearnerService:
         if batch is None:
             return 0
         self.core.add(batch)
+        crashes = self.intake.take_crashes()
+        if crashes is not None:
+            self.core.add_crashes(crashes)
         return batch.shape[0]
 
     # -- training -------------------------------------------------------------------------
@@ -212,6 +216,7 @@ class LearnerService:
         return {
             "updates": self.core.updates,
             "replay": len(self.core.replay),
+            "crash_memory": len(self.core.crashes) if self.core.crashes is not None else 0,
             **self.intake.progress(),
             "rho_bar": self.core.replay.rho_bar if len(self.core.replay) else None,
             "inbox_dropped": self.chunks_in.dropped,

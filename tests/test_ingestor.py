@@ -1,6 +1,7 @@
 """The learner's intake (learner.ingestor) on hand-made payloads: what it inserts, what it counts."""
 
 import numpy as np
+import torch
 
 from common import wire
 from common.transport import Received, Subscription
@@ -62,3 +63,29 @@ def test_the_first_whole_episode_of_one_env_is_held_out_and_summaries_feed_the_t
     summary = wire.EpisodeSummary("a", 0, 0, "alder-r", 8, 8.0, 0)
     intake.take(inbox(), inbox(wire.encode(summary), key="gvf/r/episodes/a"), updates=0)
     assert intake.tracks == {"alder": 8} and intake.progress()["return_mean"] == 8.0
+
+
+def test_the_steps_before_a_termination_are_kept_across_the_chunk_boundary_for_the_crash_memory():
+    intake = Ingestor(max_chunk_bytes=1 << 24, ingest_batch=64, crash_steps=5)
+    before, last = chunk(seq=0, steps=4), chunk(seq=2, step0=4, steps=3, end=True)
+    before.reward[:], last.reward[:] = [0.1, 0.2, 0.3, 0.4], [0.5, 0.6, 0.7]  # step t's: (t + 1) / 10
+    other = chunk(env=1, seq=1, steps=4)  # another env's chunk in between: never part of env 0's crash
+    other.reward[:] = -1
+    intake.take(inbox(*map(wire.encode, (before, other, last))), inbox(), updates=0)
+    crash = intake.take_crashes()
+    reward = crash["next", "reward"].reshape(-1)
+    assert torch.allclose(reward, torch.tensor([0.3, 0.4, 0.5, 0.6, 0.7]))  # the last 5 steps, in order
+    assert crash["next", "terminated"].reshape(-1).tolist() == [False] * 4 + [True]
+    assert "frame" in crash["next"].keys() and intake.take_crashes() is None  # handed over once
+
+
+def test_only_terminations_feed_the_crash_memory_and_a_new_episode_never_borrows_the_last_ones_steps():
+    intake = Ingestor(max_chunk_bytes=1 << 24, ingest_batch=64, crash_steps=10)
+    truncated = chunk(seq=0, steps=4)
+    truncated.truncated[-1] = True
+    next_episode = chunk(episode=1, seq=1, steps=2, end=True)  # its previous chunk is another episode's
+    intake.take(inbox(*map(wire.encode, (truncated, next_episode))), inbox(), updates=0)
+    assert intake.take_crashes().shape[0] == 2  # the new episode's own 2 steps only
+    off = Ingestor(max_chunk_bytes=1 << 24, ingest_batch=64)  # crash_steps 0: nothing kept
+    off.take(inbox(wire.encode(chunk(seq=0, end=True))), inbox(), updates=0)
+    assert off.take_crashes() is None and not off._previous

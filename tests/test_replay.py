@@ -120,3 +120,21 @@ def test_state_dict_round_trip_keeps_items_and_rho_bar():
     index = torch.arange(10)
     assert torch.equal(other.buffer.storage.get(index)["x"], replay.buffer.storage.get(index)["x"])
     assert torch.equal(other.sample_by_rho(50)["index"], replay.sample_by_rho(50)["index"])
+
+
+def test_uniform_sampling_with_a_crash_memory_draws_every_item_equally_and_keeps_crashes_past_eviction():
+    from learner.replay import CrashMemory, sample_uniform_with
+
+    replay, crashes = ImportanceResamplingReplay(30, seed=0), CrashMemory(10)
+    replay.extend(items(torch.ones(30)))  # x 0..29
+    crashes.extend(items(torch.ones(10), start=100))  # x 100..109
+    replay.extend(items(torch.ones(30), start=30))  # the main ring evicts 0..29; the crash memory keeps its own
+    x = torch.cat([sample_uniform_with(replay, crashes, 400)["x"] for _ in range(100)]).reshape(-1)
+    assert set(x.tolist()) == set(range(30, 60)) | set(range(100, 110))
+    counts = torch.bincount(torch.where(x >= 100, x - 70, x - 30), minlength=40).double()
+    assert chi_square_p_value(counts, torch.full((40,), 1 / 40, dtype=torch.float64)) > 1e-4
+    assert set(sample_uniform_with(replay, None, 50)["x"].reshape(-1).tolist()) <= set(range(30, 60))
+    crashes.extend(items(torch.ones(4), start=200))  # FIFO within the crash memory
+    assert len(crashes) == 10 and set(crashes.buffer.storage.get(torch.arange(10))["x"].reshape(-1).tolist()) == set(
+        range(104, 110)
+    ) | set(range(200, 204))

@@ -11,7 +11,8 @@ ROOT = Path(__file__).resolve().parents[1]
 
 
 def test_inproc_run_trains_in_one_process_and_stops_by_itself_at_max_updates(tmp_path):
-    cfg = compose_run([*TINY, "transport=inproc", "progress=false", "actors.count=1", "learner.max_updates=30"])
+    overrides = ["transport=inproc", "progress=false", "actors.count=1", "learner.max_updates=30"]
+    cfg = compose_run([*TINY, *overrides, "scale.crash_memory=500", "scale.crash_steps=8"])
     stop = threading.Event()
     watchdog = threading.Timer(120, stop.set)  # only if the run does not end by itself
     watchdog.start()
@@ -28,6 +29,7 @@ def test_inproc_run_trains_in_one_process_and_stops_by_itself_at_max_updates(tmp
     assert result["inserted"] >= 64 and result["episodes"] > 0
     assert result["rejected"] == 0 and result["lost_chunks"] == 0
     assert result["policy_lag"] is not None
+    assert 0 < result["crash_memory"] <= 500  # copies of the steps before the crashes
     assert (tmp_path / "checkpoints").is_dir() and any((tmp_path / "tb").iterdir())
 
 

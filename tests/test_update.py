@@ -358,3 +358,23 @@ def test_td3_option_steps_the_actor_every_second_update_with_twin_critics_and_re
         c.update()
     assert all(torch.equal(v, resumed.nets.actor.state_dict()[k]) for k, v in core.nets.actor.state_dict().items())
     assert (core.ddpg.loss_module.qvalue_network_params == resumed.ddpg.loss_module.qvalue_network_params).all()
+
+
+def test_the_crash_memory_feeds_the_uniform_batch_after_the_replay_evicted_its_crashes(data):
+    scale = dataclasses.replace(TINY, crash_memory=40)
+    core = LearningCore(AgentConfig(name="gvf_ddpg", metrics_every=1), scale, seed=0)
+    calm, crash = data[1:], data[:1].clone()
+    crash["next", "reward"] = torch.full((1, 1), -7.0)  # marks the one crash transition
+    crash["next", "terminated"] = torch.ones(1, 1, dtype=torch.bool)
+    core.add(crash)
+    core.add_crashes(crash)
+    core.add(calm[:300])  # the ring of 300 evicted the crash
+    assert not bool((core.replay.buffer.storage.get(torch.arange(300))["reward"] == -7).any())
+    seen = [core._uniform()["next", "reward"] for _ in range(40)]  # 640 draws, 1/301 each: ~2 crashes
+    assert any(bool((r == -7).any()) for r in seen)
+    assert core.update()["train/crash_memory_size"] == 1.0
+    state = core.state_dict(with_replay=True)
+    resumed = LearningCore(AgentConfig(name="gvf_ddpg"), scale, seed=0)
+    resumed.load_state_dict(state)
+    assert len(resumed.crashes) == 1
+    assert LearningCore(AgentConfig(name="gvf_ddpg"), TINY).crashes is None  # 0: the paper's single replay

@@ -105,6 +105,11 @@ class ScaleConfig:
     """DDPG's reward is multiplied by this (the paper scaled its reward so that action values lie in [-1, 1])."""
     act_with_target: bool = False
     """Broadcast (act and evaluate with) DDPG's Polyak-averaged target actor instead of the online one."""
+    crash_memory: int = 0
+    """Capacity (transitions) of a second replay that keeps the last `crash_steps` steps before each
+    termination after the main ring evicted them; DDPG and g sample both together (learner.replay); 0: none, the paper."""
+    crash_steps: int = 30
+    """Steps before a termination kept in the crash memory (at most the actor's chunk_len + 1)."""
     td3: bool = False
     """TD3-style critic (twin critics, target-policy smoothing, delayed actor steps) instead of the paper's DDPG (learner.ddpg)."""
     td3_policy_noise: float = 0.2
@@ -141,6 +146,10 @@ def check_scale(scale: ScaleConfig) -> None:
         raise ValueError(f"scale.mirror must be in [0, 1], got {scale.mirror}")
     if not scale.reward_scale > 0.0:
         raise ValueError(f"scale.reward_scale must be > 0, got {scale.reward_scale}")
+    if scale.crash_memory < 0:
+        raise ValueError(f"scale.crash_memory must be >= 0, got {scale.crash_memory}")
+    if scale.crash_steps < 1:
+        raise ValueError(f"scale.crash_steps must be >= 1, got {scale.crash_steps}")
     if scale.td3_actor_delay < 1:
         raise ValueError(f"scale.td3_actor_delay must be >= 1, got {scale.td3_actor_delay}")
 
