@@ -41,6 +41,8 @@ def test_bad_values_are_refused_naming_the_field(override, field):
         ("agent.gvf_terminal=bounce", "gvf_terminal"),
         ("scale.reward_scale=0", "reward_scale"),
         ("agent.rho_refresh_every=-1", "rho_refresh_every"),
+        ("scale.crash_memory=-5", "crash_memory"),
+        ("scale.crash_steps=0", "crash_steps"),
     ],
 )
 def test_bad_learning_values_are_refused_naming_the_field(override, field):
@@ -58,6 +60,26 @@ def test_a_study_job_whose_summary_exists_is_skipped(tmp_path, monkeypatch):
     monkeypatch.setattr(study.subprocess, "run", lambda cmd, **kw: ran.append(cmd))
     assert study.run_job("ddpg_image", 3, 15, 500, tmp_path / "runs", tmp_path / "work", []) == done
     assert ran == [] and not (tmp_path / "work").exists()
+
+
+def test_a_run_made_outside_the_study_is_adopted_with_minutes_from_its_start(tmp_path):
+    import json
+    import os
+
+    from actors.evaluation import study
+
+    run = tmp_path / "run"
+    (run / ".hydra").mkdir(parents=True)
+    (run / ".hydra" / "config.yaml").write_text("seed: 3\n")
+    os.utime(run / ".hydra" / "config.yaml", (1000.0, 1000.0))
+    drive = {"track": "dune", "lap_completed": 1.0, "episode_length": 700}
+    e = {"updates": 500, "time": 1090.0, "mean": {"lap_completed": 1.0}, "drives": [drive]}
+    (run / "eval.jsonl").write_text(json.dumps(e) + "\n")
+    path = study.adopt(run, "gvf_ddpg", 3, 15, 500, tmp_path / "runs", ["agent.gvf_terminal=zero"])
+    record = json.loads(path.read_text())
+    assert path == study.summary_path(tmp_path / "runs", "gvf_ddpg", 3)
+    assert record["evaluations"][0]["minute"] == 1.5 and record["adopted_from"] == str(run)
+    assert record["overrides"] == ["agent.gvf_terminal=zero"] and record["last"] is None  # no checkpoint there
 
 
 def test_step_sizes_come_from_the_scale_unless_the_agent_sets_them():

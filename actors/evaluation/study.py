@@ -100,6 +100,24 @@ def summarize(run_dir: Path, start: float, job: dict) -> dict:
     }
 
 
+def write_summary(record: dict, path: Path) -> Path:
+    path.parent.mkdir(parents=True, exist_ok=True)
+    tmp = path.with_suffix(".tmp")
+    tmp.write_text(json.dumps(rounded(record)))
+    tmp.replace(path)  # a half-written summary would be skipped as done
+    return path
+
+
+def adopt(run_dir: Path, variant: str, seed: int, minutes: float, eval_every: int, out: Path, overrides) -> Path:
+    """The summary of a finished run made outside the study (e.g. by bench/time_to_drive.py with the
+    same settings); its start is when Hydra wrote the run's config."""
+    start = (run_dir / ".hydra" / "config.yaml").stat().st_mtime
+    job = {"variant": variant, "seed": seed, "minutes": minutes, "eval_every": eval_every, "overrides": overrides}
+    return write_summary(
+        summarize(run_dir, start, {**job, "adopted_from": str(run_dir)}), summary_path(out, variant, seed)
+    )
+
+
 def run_job(
     variant: str, seed: int, minutes: float, eval_every: int, out: Path, work: Path, overrides: list[str]
 ) -> Path:
@@ -142,12 +160,7 @@ def run_job(
         "overrides": overrides,
         "wall_minutes": round((time.time() - start) / 60, 2),
     }
-    record = summarize(run_dir, start, job)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    tmp = path.with_suffix(".tmp")
-    tmp.write_text(json.dumps(rounded(record)))
-    tmp.replace(path)  # a half-written summary would be skipped as done
-    return path
+    return write_summary(summarize(run_dir, start, job), path)
 
 
 def main() -> None:
@@ -158,8 +171,15 @@ def main() -> None:
     parser.add_argument("--eval-every", type=int, default=500, help="learner updates between evaluations")
     parser.add_argument("--out", type=Path, default=Path("docs/results/runs"), help="where summaries go (commit these)")
     parser.add_argument("--work", type=Path, default=Path("runs/study"), help="scratch: run folders, checkpoints")
+    parser.add_argument("--adopt", type=Path, default=None, help="summarize this finished run (one variant and seed)")
     parser.add_argument("overrides", nargs="*", help="extra Hydra overrides for every run")
     args = parser.parse_args()
+    if args.adopt is not None:
+        if len(args.variants) != 1 or len(args.seeds) != 1:
+            parser.error("--adopt summarizes one run: give one --variants and one --seeds")
+        (variant,), (seed,) = args.variants, args.seeds
+        print(adopt(args.adopt, variant, seed, args.minutes, args.eval_every, args.out, args.overrides))
+        return
     for seed in args.seeds:  # seed-major: a partial study has every variant at its first seeds
         for variant in args.variants:
             print(
