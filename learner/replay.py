@@ -16,9 +16,10 @@ of a stored item is the value it was inserted with.
 `CrashMemory` (an option beyond the paper, `scale.crash_memory`) is a second, small ring buffer of
 copies of the last steps before each termination: the main ring evicts them after ~90 s of
 experience at the small scale, and the policy's speed crept back up once the crashes it caused
-had left (docs/results.md). DDPG and the discriminator draw their uniform minibatch from both
-buffers together (`sample_uniform_with`), each item equally likely, so a crash lives as long
-as the crash memory keeps it; the GVFs' sampling by rho (eq. 5) sees the main buffer only.
+had left. DDPG and the discriminator draw their uniform minibatch from both buffers together
+(`sample_uniform_with`), each item equally likely, so a crash lives as long as the crash memory
+keeps it; the GVFs' sampling by rho (eq. 5) sees the main buffer only. Off by default: with it
+the swings remained (docs/results.md).
 
 The storage layout of a LaneDrive transition is compact: the next observation's previous
 frame is the current frame and its last action is the action, so only the new frame is
