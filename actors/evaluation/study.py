@@ -108,7 +108,9 @@ def write_summary(record: dict, path: Path) -> Path:
     return path
 
 
-def adopt(run_dir: Path, variant: str, seed: int, minutes: float, eval_every: int, out: Path, overrides) -> Path:
+def adopt(
+    run_dir: Path, variant: str, seed: int, minutes: float, eval_every: int, out: Path, overrides: list[str]
+) -> Path:
     """The summary of a finished run made outside the study (e.g. by bench/time_to_drive.py with the
     same settings); its start is when Hydra wrote the run's config."""
     start = (run_dir / ".hydra" / "config.yaml").stat().st_mtime

@@ -42,7 +42,7 @@ class AgentConfig:
     rho_refresh_every: int = 1000
     """Recompute the rho of every item in the replay with the current g every this many updates (0: never)."""
     gvf_terminal: str = "zero"
-    """GVF target at a termination: zero (continuation 0, the paper's TD) or absorbing (the last cumulant
+    """GVF target at a termination: zero (continuation 0, an ordinary TD target) or absorbing (the last cumulant
     continues, target c_T); zero drove better (docs/results.md, learner.gvf)."""
     discount: Optional[float] = None
     """DDPG discount of the reward (not stated in the paper); None: the scale's."""
