@@ -103,6 +103,8 @@ class LearningCore:
             policy_noise=scale.td3_policy_noise,
             noise_clip=scale.td3_noise_clip,
             actor_delay=scale.td3_actor_delay,
+            lr_actor_decay_updates=scale.lr_actor_decay_updates,
+            lr_actor_final=scale.lr_actor_final,
         )
         self.updates = 0
         self.warm = False  # g trained on the warm-up data and every rho recomputed

@@ -15,6 +15,9 @@ without gradient); for the image baselines they read the observation keys direct
 (Fujimoto et al. 2018): twin critics (a second copy of the critic, freshly initialised) with the
 smaller target value, target-policy smoothing (clipped Gaussian noise on the target action), and
 the actor stepped only every `actor_delay` updates.
+
+`lr_actor_decay_updates` (an option, 0 by default) lowers the actor's step size linearly to
+`lr_actor_final` of it over that many updates, so that a policy found early moves less later.
 """
 
 from __future__ import annotations
@@ -47,6 +50,8 @@ class DDPG:
         policy_noise: float = 0.2,
         noise_clip: float = 0.5,
         actor_delay: int = 2,
+        lr_actor_decay_updates: int = 0,
+        lr_actor_final: float = 0.1,
     ):
         self.actor, self.critic = actor, critic
         self.td3, self.actor_delay, self.steps = td3, actor_delay, 0
@@ -80,6 +85,14 @@ class DDPG:
         # fused: one kernel per step instead of one per tensor
         self.actor_optimizer = torch.optim.Adam(actor.parameters(), lr=lr_actor, fused=True)
         self.critic_optimizer = torch.optim.Adam(critic_params, lr=lr_critic, fused=True)
+        # stepped once per update: the step size falls linearly, then holds at lr_actor_final
+        self.actor_schedule = (
+            torch.optim.lr_scheduler.LinearLR(
+                self.actor_optimizer, 1.0, lr_actor_final, total_iters=lr_actor_decay_updates
+            )
+            if lr_actor_decay_updates
+            else None
+        )
 
     def loss(self, batch: TensorDictBase) -> tuple[Tensor, TensorDictBase]:
         """loss_actor + loss_value on a uniform minibatch (their gradients are disjoint)."""
@@ -103,6 +116,8 @@ class DDPG:
         self.critic_optimizer.step()
         if self.actor_steps_now():
             self.actor_optimizer.step()
+        if self.actor_schedule is not None:
+            self.actor_schedule.step()
         self.target_updater.step()
 
     def update(self, batch: TensorDictBase) -> TensorDictBase:
@@ -119,6 +134,7 @@ class DDPG:
             "steps": self.steps,
             "actor_optimizer": self.actor_optimizer.state_dict(),
             "critic_optimizer": self.critic_optimizer.state_dict(),
+            "actor_schedule": None if self.actor_schedule is None else self.actor_schedule.state_dict(),
         }
 
     def load_state_dict(self, state: dict) -> None:
@@ -126,3 +142,5 @@ class DDPG:
         self.steps = state.get("steps", 0)
         self.actor_optimizer.load_state_dict(state["actor_optimizer"])
         self.critic_optimizer.load_state_dict(state["critic_optimizer"])
+        if self.actor_schedule is not None and state.get("actor_schedule") is not None:
+            self.actor_schedule.load_state_dict(state["actor_schedule"])

@@ -46,6 +46,35 @@ def test_soft_update_moves_targets_by_tau_and_losses_touch_their_own_networks():
         assert torch.allclose(target, old + 0.001 * (online - old), atol=1e-7)
 
 
+def test_actor_step_size_decays_linearly_then_holds_and_resumes_where_it_was():
+    torch.manual_seed(0)
+    ddpg = make(3, 2, lr_actor=1e-3, lr_critic=1e-2, lr_actor_decay_updates=4, lr_actor_final=0.25)
+    batch = TensorDict(
+        {
+            "phi": torch.randn(8, 3),
+            "action": torch.rand(8, 2) * 2 - 1,
+            "next": {
+                "phi": torch.randn(8, 3),
+                "reward": torch.randn(8, 1),
+                "done": torch.zeros(8, 1, dtype=torch.bool),
+                "terminated": torch.zeros(8, 1, dtype=torch.bool),
+            },
+        },
+        [8],
+    )
+    seen = []
+    for _ in range(6):
+        seen.append(ddpg.actor_optimizer.param_groups[0]["lr"])
+        ddpg.update(batch)
+    assert seen == pytest.approx([1e-3, 0.8125e-3, 0.625e-3, 0.4375e-3, 0.25e-3, 0.25e-3])
+    assert ddpg.critic_optimizer.param_groups[0]["lr"] == 1e-2
+    state = ddpg.state_dict()
+    fresh = make(3, 2, lr_actor=1e-3, lr_critic=1e-2, lr_actor_decay_updates=4, lr_actor_final=0.25)
+    fresh.load_state_dict(state)
+    fresh.update(batch)
+    assert fresh.actor_optimizer.param_groups[0]["lr"] == pytest.approx(0.25e-3)
+
+
 def test_ddpg_solves_a_contextual_bandit():
     """One-step episodes, r = -(a0 - 0.5 s0)^2 - (a1 + 0.3 s1)^2: pi*(s) = (0.5 s0, -0.3 s1).
 

@@ -111,6 +111,11 @@ class ScaleConfig:
     termination after the main ring evicted them; DDPG and g sample both together (learner.replay); 0: none, the paper."""
     crash_steps: int = 30
     """Steps before a termination kept in the crash memory (at most the actor's chunk_len + 1)."""
+    lr_actor_decay_updates: int = 0
+    """Updates over which the actor's step size falls linearly from lr_actor to lr_actor *
+    lr_actor_final, then stays there; 0: constant, as the paper."""
+    lr_actor_final: float = 0.1
+    """lr_actor_decay_updates: the final step size as a fraction of lr_actor."""
     td3: bool = False
     """TD3-style critic (twin critics, target-policy smoothing, delayed actor steps) instead of the paper's DDPG (learner.ddpg)."""
     td3_policy_noise: float = 0.2
@@ -151,6 +156,10 @@ def check_scale(scale: ScaleConfig) -> None:
         raise ValueError(f"scale.crash_memory must be >= 0, got {scale.crash_memory}")
     if scale.crash_steps < 1:
         raise ValueError(f"scale.crash_steps must be >= 1, got {scale.crash_steps}")
+    if scale.lr_actor_decay_updates < 0:
+        raise ValueError(f"scale.lr_actor_decay_updates must be >= 0, got {scale.lr_actor_decay_updates}")
+    if not 0.0 < scale.lr_actor_final <= 1.0:
+        raise ValueError(f"scale.lr_actor_final must be in (0, 1], got {scale.lr_actor_final}")
     if scale.td3_actor_delay < 1:
         raise ValueError(f"scale.td3_actor_delay must be >= 1, got {scale.td3_actor_delay}")
 
