@@ -5,7 +5,7 @@ VENV := .venv
 PY := $(VENV)/bin/python
 STAMP := $(VENV)/.installed
 
-.PHONY: train test demo bench clean
+.PHONY: train test demo bench slurm clean
 
 $(STAMP): pyproject.toml
 	test -x $(PY) || $(PYTHON) -m venv $(VENV)
@@ -29,6 +29,12 @@ test: $(STAMP)
 
 bench: $(STAMP)
 	$(PY) bench/sim.py
+
+# A one-node SLURM cluster on this machine (root, apt) and Hydra's submitit launcher, for
+# deploy/slurm/ and `pytest -m slow tests/test_slurm.py`; `deploy/slurm/local_cluster.sh stop` ends it.
+slurm: $(STAMP)
+	deploy/slurm/local_cluster.sh
+	$(PY) -m pip install -e '.[slurm]'
 
 clean:
 	rm -rf $(VENV) *.egg-info
