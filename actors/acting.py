@@ -1,10 +1,14 @@
 """The acting step, free of any network: policy on a batch of observations plus OU noise.
 
 Weights arrive as `common.wire.Weights` (name -> array, a version); until the first arrives
-the actor has no policy and `ready` is False.
+the actor has no policy and `ready` is False. With `learner.rho_at=actor` they also carry the
+behaviour discriminator (`behaviour.`-prefixed tensors): then `log_mu` gives each chunk's
+log mu_hat, so the learner needs no discriminator forward at insert (issue: rho where it scales).
 """
 
 from __future__ import annotations
+
+import dataclasses
 
 import numpy as np
 import torch
@@ -12,9 +16,16 @@ import torch
 from actors.exploration import OrnsteinUhlenbeck
 from common.config.agent import AgentConfig, ScaleConfig
 from common.config.run import ActorConfig
-from common.networks import make_policy
-from common.wire import RejectCounter, Weights, WireError
+from common.density import log_mu_hat
+from common.networks import BehaviourNetwork, make_policy
+from common.wire import RejectCounter, TransitionChunk, Weights, WireError
 from common.wire_rules import check_weights
+
+BEHAVIOUR = "behaviour."  # prefix of the discriminator's tensors in a weights message
+
+
+def _tensors(arrays: dict) -> dict[str, torch.Tensor]:
+    return {k: torch.from_numpy(np.array(v, copy=True)) for k, v in arrays.items()}
 
 
 class Acting:
@@ -25,6 +36,10 @@ class Acting:
         self.lowdim = agent.representation == "lowdim"
         self.noise = OrnsteinUhlenbeck(n_envs, 2, theta=actor.ou_theta, sigma=actor.ou_sigma, dt=actor.ou_dt, seed=seed)
         self.version, self.epoch = -1, None
+        self.predictive = agent.representation == "predictive"
+        self._behaviour_shape = (scale.conv_channels, scale.behaviour_hidden)
+        self.behaviour: BehaviourNetwork | None = None
+        """The broadcast discriminator, once weights carried one."""
 
     @property
     def ready(self) -> bool:
@@ -37,10 +52,37 @@ class Acting:
         WireError('weights') before anything is loaded (`common.wire_rules.check_weights`)."""
         if weights.epoch == self.epoch and weights.version <= self.version:
             return False
-        check_weights(weights, self.policy.state_dict())
-        self.policy.load_state_dict({k: torch.from_numpy(np.array(v, copy=True)) for k, v in weights.tensors.items()})
+        policy = {k: v for k, v in weights.tensors.items() if not k.startswith(BEHAVIOUR)}
+        behaviour = {k[len(BEHAVIOUR) :]: v for k, v in weights.tensors.items() if k.startswith(BEHAVIOUR)}
+        check_weights(dataclasses.replace(weights, tensors=policy), self.policy.state_dict())
+        g = None
+        if behaviour:
+            if not self.predictive:
+                raise WireError("weights", "behaviour tensors for a policy without a discriminator")
+            g = self.behaviour or BehaviourNetwork(*self._behaviour_shape).eval()
+            check_weights(dataclasses.replace(weights, tensors=behaviour), g.state_dict())
+        self.policy.load_state_dict(_tensors(policy))
+        if g is not None:
+            g.load_state_dict(_tensors(behaviour))
+        self.behaviour = g  # a learner that stops sending it takes rho back
         self.version, self.epoch = weights.version, weights.epoch
         return True
+
+    @torch.no_grad()
+    def with_log_mu(self, chunk: TransitionChunk) -> TransitionChunk:
+        """`chunk` with log mu_hat of each step under the broadcast discriminator (as the learner
+        would compute it at insert), or unchanged while none was broadcast."""
+        if self.behaviour is None:
+            return chunk
+        n, action = chunk.num_steps, torch.from_numpy(np.asarray(chunk.action))
+        logit = self.behaviour(
+            torch.from_numpy(chunk.observations()[:n]),
+            torch.from_numpy(np.asarray(chunk.speed[:n])),
+            torch.from_numpy(np.asarray(chunk.last_action[:n])),
+            action,
+        )
+        log_mu = log_mu_hat(logit, action).reshape(-1).numpy().astype(np.float32)
+        return dataclasses.replace(chunk, log_mu=log_mu, behaviour_version=self.version)
 
     def adopt(self, weights: Weights, rejects: RejectCounter, key: str) -> bool:
         """`load`, with a set that does not fit counted by `rejects` and dropped (the old one kept)."""

@@ -152,7 +152,7 @@ def run_actor(cfg: RunConfig, t, stop: threading.Event, env_factory=make_env) ->
                     acting.version,
                 )
                 if chunk is not None:
-                    sender.send(chunks_out, wire.encode(chunk))
+                    sender.send(chunks_out, wire.encode(acting.with_log_mu(chunk)))
                     stats["chunks"] += 1
                 if done[i]:
                     name, steps = str(info["final_info"]["track"][i]), int(info["final_info"]["steps"][i])

@@ -29,6 +29,8 @@ ingest phase also warms up until the replay has been filled once: its pages are 
                    would be: the inbox overflows, and dropped chunks are counted
   ingest_rho       paced, `core.add` unchanged: `LearningCore.add` computes rho with the behaviour
                    network first (the learner's real insert cost)
+  ingest_actor_rho paced, `core.add` unchanged, the chunks carrying the actors' log mu_hat
+                   (`learner.rho_at=actor`): the learner only computes tau and combines
 
 `transitions_per_s` is the paced ingest; `ratio` = transitions_per_s / raw_zenoh_per_s (medians
 over rounds; `ratio_per_repeat` pairs the phases of each round). Rates count only transitions
@@ -81,6 +83,7 @@ from common import wire  # noqa: E402
 from common.keys import Keys  # noqa: E402
 
 TARGET_RATIO, GOAL_TRANSITIONS_PER_S = 0.5, 50_000.0
+ACTOR_RHO_GOAL, ACTOR_RHO_RATIO = 40_000.0, 0.8
 RAW_SUFFIX, WEIGHTS_SUFFIX = "-raw", "-weights"
 FILL_TIMEOUT_S = 60.0
 """Longest the first ingest phase's warm-up waits for the replay to be full once."""
@@ -165,7 +168,14 @@ def stage_times(service):
 
 
 def ingest_phase(
-    service, producer: Producer, warmup: float, seconds: float, credit=None, window: int = 0, profiler=None
+    service,
+    producer: Producer,
+    warmup: float,
+    seconds: float,
+    credit=None,
+    window: int = 0,
+    profiler=None,
+    log_mu: bool = False,
 ) -> dict:
     """The learner's real ingest loop for warmup + seconds, then drain what is left.
 
@@ -192,7 +202,7 @@ def ingest_phase(
             time.sleep(0.005)  # the learner's own idle wait when nothing arrived
         return n
 
-    producer.start(service.keys.run, window if credit is not None else 0)
+    producer.start(service.keys.run, window if credit is not None else 0, log_mu)
     deadline = time.monotonic() + 30.0
     while ingest() == 0:
         if time.monotonic() > deadline:
@@ -284,7 +294,8 @@ def main(argv: list[str] | None = None) -> dict:
     from common.transport.zenoh_backend import ZenohTransport
     from learner.service import LearnerService
 
-    cfg = compose(["run=bench", "learner.device=cpu", "transport=local", *args.overrides])
+    # rho_at=actor: the learner takes a chunk's log mu_hat where there is one (ingest_actor_rho)
+    cfg = compose(["run=bench", "learner.device=cpu", "transport=local", "learner.rho_at=actor", *args.overrides])
     if not 0 < args.window < cfg.learner.inbox_chunks:
         parser.error(f"--window must be in 1..{cfg.learner.inbox_chunks - 1} (learner.inbox_chunks)")
     chunk_len, frame_shape = cfg.actor.chunk_len, (64, 128)
@@ -341,6 +352,7 @@ def main(argv: list[str] | None = None) -> dict:
             if not args.no_rho:
                 service.core.add = real_add
                 r["ingest_rho"] = ingest_phase(**phase, credit=credit, window=args.window)
+                r["ingest_actor_rho"] = ingest_phase(**phase, credit=credit, window=args.window, log_mu=True)
             rounds.append(r)
             print(json.dumps({k: round(v["transitions_per_s"]) for k, v in r.items()}), file=sys.stderr)
         if profiler is not None:
@@ -417,6 +429,13 @@ def summarize(
         "meets_ratio_target": tps / raw >= TARGET_RATIO,
         "meets_50k_goal": tps >= GOAL_TRANSITIONS_PER_S,
         "meets_50k_goal_with_rho": None if med("ingest_rho") is None else med("ingest_rho") >= GOAL_TRANSITIONS_PER_S,
+        # rho where it scales: the actors send log mu_hat; target >= 40,000/s or >= 0.8x no rho
+        "transitions_per_s_with_actor_rho": med("ingest_actor_rho"),
+        "actor_rho_to_no_rho": ratio(med("ingest_actor_rho"), tps),
+        "learner_rho_to_no_rho": ratio(med("ingest_rho"), tps),
+        "meets_actor_rho_target": None
+        if med("ingest_actor_rho") is None
+        else (med("ingest_actor_rho") >= ACTOR_RHO_GOAL or med("ingest_actor_rho") >= ACTOR_RHO_RATIO * tps),
         "chunks_sent": total("sent"),
         "chunks_inserted": total("inserted_chunks"),
         "chunks_inbox_dropped": total("inbox_dropped"),

@@ -27,11 +27,14 @@ ACTOR = "bench-0"
 # --- the synthetic actor ---------------------------------------------------------------------
 
 
-def episode_payloads(chunk_len: int, frame_shape: tuple[int, int], seed: int) -> list[tuple[bytes, int, int]]:
+def episode_payloads(
+    chunk_len: int, frame_shape: tuple[int, int], seed: int, log_mu: bool = False
+) -> list[tuple[bytes, int, int]]:
     """One synthetic episode as encoded chunks, each with the offsets of its seq and episode.
 
     Frames are consecutive (chunk k+1 starts with the last two frames of chunk k) and random;
-    the other fields are random finite floats; only the last chunk ends (truncated).
+    the other fields are random finite floats; only the last chunk ends (truncated). With
+    `log_mu` each chunk carries an actor's log mu_hat (`learner.rho_at=actor`).
     """
     rng = np.random.default_rng(seed)
     n_chunks = max(EPISODE_STEPS // chunk_len, 1)
@@ -41,6 +44,7 @@ def episode_payloads(chunk_len: int, frame_shape: tuple[int, int], seed: int) ->
     action = rng.uniform(-1, 1, (steps + 1, 2)).astype(np.float32)
     reward = rng.random(steps, dtype=np.float32)
     alpha, beta = rng.uniform(-1, 1, (2, steps + 1)).astype(np.float32)
+    log_mus = rng.uniform(-3, 1, steps).astype(np.float32)
     out = []
     for k in range(n_chunks):
         s, T = k * chunk_len, chunk_len
@@ -63,6 +67,8 @@ def episode_payloads(chunk_len: int, frame_shape: tuple[int, int], seed: int) ->
             alpha=alpha[s : s + T + 1],
             beta=beta[s : s + T + 1],
         )
+        if log_mu:
+            chunk = replace(chunk, log_mu=log_mus[s : s + T], behaviour_version=0)
         payload = wire.encode(chunk)
         offsets = []
         for name, mark in ((b"seq", SEQ_MARK), (b"episode", EPISODE_MARK)):
@@ -90,14 +96,16 @@ def credit_key(run: str) -> str:
 def producer_main(
     tcfg: TransportConfig, runs: list[str], chunk_len: int, frame_shape: tuple[int, int], commands, results, halt, ready
 ) -> None:
-    """On ("send", run, window): publish the synthetic episode on `run` until `halt`.
+    """On ("send", run, window, log_mu): publish the synthetic episode on `run` until `halt`.
 
     window 0: flat out (as fast as BLOCK puts go); window W: at most W chunks ahead of the
-    learner's last credit, so that the learner's inbox never overflows.
+    learner's last credit, so that the learner's inbox never overflows. log_mu: the chunks
+    carry an actor's log mu_hat.
     """
     from common.transport.zenoh_backend import ZenohTransport
 
-    pool = episode_payloads(chunk_len, frame_shape, seed=1)
+    pools = {flag: episode_payloads(chunk_len, frame_shape, seed=1, log_mu=flag) for flag in (False, True)}
+    pool = pools[False]
     with ZenohTransport(tcfg) as t:
         pubs = {run: t.publisher(Keys(run).transitions(ACTOR)) for run in runs}
         # a bare zenoh publisher on the same key only to ask whether anyone subscribes yet
@@ -107,7 +115,8 @@ def producer_main(
         results.put(len(pool[0][0]))
         ready.set()
         while (cmd := commands.get())[0] == "send":
-            _, run, window = cmd
+            _, run, window, log_mu = cmd
+            pool = pools[log_mu]
             pub, deadline = pubs[run], time.monotonic() + 10.0
             while not probes[run].matching_status.matching and time.monotonic() < deadline:
                 time.sleep(0.002)  # puts before the router knows the subscriber would vanish
@@ -141,9 +150,9 @@ class Producer:
         )
         self.process.start()
 
-    def start(self, run: str, window: int = 0) -> None:
+    def start(self, run: str, window: int = 0, log_mu: bool = False) -> None:
         self.halt.clear()
-        self.commands.put(("send", run, window))
+        self.commands.put(("send", run, window, log_mu))
 
     def stop(self, timeout: float = 30.0) -> int:
         """Halt and return how many chunks were put in this phase."""

@@ -90,6 +90,10 @@ class TransitionChunk:
     truncated: np.ndarray  # (T,) bool
     alpha: np.ndarray  # (T+1,) float32, observation-aligned
     beta: np.ndarray  # (T+1,) float32, observation-aligned
+    log_mu: np.ndarray | None = None
+    """(T,) float32, optional (`learner.rho_at=actor`): log mu_hat(action[t] | observation t) under
+    the broadcast discriminator of version `behaviour_version`; absent: the learner computes it."""
+    behaviour_version: int = -1
 
     @property
     def num_steps(self) -> int:
@@ -188,7 +192,7 @@ _FIELDS = {
     "tracks": frozenset({"version", "steps"}),
     "control": frozenset({"command", "reason"}),
 }
-_OPTIONAL = {"control": frozenset({"expires_s"})}
+_OPTIONAL = {"control": frozenset({"expires_s"}), "transitions": frozenset({"log_mu", "behaviour_version"})}
 
 
 def _int(value: Any) -> Any:
@@ -202,6 +206,9 @@ def _to_map(msg: Message) -> dict:
         m["frames"] = _array_map(msg.frames, U8)
         for name, (dtype, _, _) in _STEP_FIELDS.items():
             m[name] = _array_map(getattr(msg, name), dtype)
+        if msg.log_mu is not None:
+            m["log_mu"] = _array_map(msg.log_mu, F4)
+            m["behaviour_version"] = _int(msg.behaviour_version)
         return {"v": SCHEMA_VERSION, "type": "transitions", **m}
     if isinstance(msg, EpisodeSummary):
         return {
@@ -263,6 +270,11 @@ def _chunk_from_map(m: dict, limits: Limits) -> TransitionChunk:
     ends = arrays["terminated"][:-1].any() or arrays["truncated"][:-1].any()
     if ends:
         raise WireError("value", "only the last step of a chunk may be terminated or truncated")
+    if ("log_mu" in m) != ("behaviour_version" in m):
+        raise WireError("schema", "transitions: log_mu and behaviour_version come together")
+    if "log_mu" in m:
+        arrays["log_mu"] = chk.array(m, "log_mu", F4, (steps,))
+        scalars["behaviour_version"] = chk.integer(m, "behaviour_version")
     return TransitionChunk(frames=frames, **scalars, **arrays)
 
 

@@ -7,7 +7,7 @@ drops it like a malformed one: a receiver never crashes on, learns from or is st
     kind        rule
     identity    a chunk's or summary's `actor` is the last chunk of the key it came on
     range       values within BOUNDS (docs/wire.md): actions and last actions in [-1, 1], speed
-                in [0, 1], reward, alpha and beta within the environment's bounds
+                in [0, 1], reward, alpha and beta within the environment's bounds, log_mu in [-50, 50]
     seq         `seq` (SequenceTracker): 0 announces an actor's (re)start; otherwise it must
                 move forward, by at most MAX_SEQ_GAP; duplicates and backward steps are dropped
     weights     names, shapes and dtypes equal to the receiver's own policy, every value finite
@@ -32,6 +32,8 @@ BOUNDS: dict[str, tuple[float, float]] = {
     # an episode ends once |alpha| > 1; its last step can overshoot by one step's lateral move
     "alpha": (-4.0, 4.0),
     "beta": (-math.pi, math.pi),
+    # log mu_hat = logit g + log eta: |logit| > 40 is beyond float32's sigmoid, a sender's bug
+    "log_mu": (-50.0, 50.0),
 }
 MAX_SEQ_GAP = 10_000
 """A larger forward jump of one actor's `seq` is refused rather than counted as lost chunks."""
@@ -54,7 +56,8 @@ def check_chunk(chunk: TransitionChunk, key: str = "") -> None:
     """A transition chunk's sender and value ranges (see the module docstring)."""
     check_sender(chunk.actor, key)
     for name in BOUNDS:
-        _in_range(name, getattr(chunk, name))
+        if getattr(chunk, name) is not None:  # log_mu is optional
+            _in_range(name, getattr(chunk, name))
 
 
 def check_episode(summary: EpisodeSummary, key: str = "") -> None:

@@ -4,40 +4,26 @@ Algorithm 1, lines 8 and 15-17).
 A discriminator g(a, s) is trained with binary cross-entropy to tell recorded pairs
 (s, a ~ mu) (label 1) from pairs (s, a ~ eta) (label 0), eta uniform on the action box
 [-1, 1]^2. With equal class priors (exactly half of each minibatch is relabelled),
-mu(a|s) / eta(a|s) = g / (1 - g), so
-
-    mu_hat(a|s) = g(a, s) / (1 - g(a, s)) * eta(a|s),   log mu_hat = logit g + log eta,
-
-computed from the logit so that it stays finite where g saturates.
+mu(a|s) / eta(a|s) = g / (1 - g): `common.density.log_mu_hat` turns g's logit into log mu_hat.
 """
 
 from __future__ import annotations
 
-import math
 from collections.abc import Callable
 
 import torch
 import torch.nn.functional as F
 from torch import Tensor
 
-ACTION_LOW, ACTION_HIGH = -1.0, 1.0  # the action box of the simulator contract
+from common.density import ACTION_HIGH, ACTION_LOW, log_eta, log_mu_hat
+
+__all__ = ["ACTION_HIGH", "ACTION_LOW", "log_eta", "log_mu_hat", "sample_eta", "relabel_half", "behaviour_loss"]
 
 
 def sample_eta(n: int, action_dim: int = 2, *, device=None, generator: torch.Generator | None = None) -> Tensor:
     """a ~ eta: uniform on the action box."""
     u = torch.rand(n, action_dim, device=device, generator=generator)
     return ACTION_LOW + (ACTION_HIGH - ACTION_LOW) * u
-
-
-def log_eta(action: Tensor) -> Tensor:
-    """log eta(a|s) (B, 1): the uniform density on the box, independent of s."""
-    value = -action.shape[-1] * math.log(ACTION_HIGH - ACTION_LOW)
-    return torch.full((*action.shape[:-1], 1), value, dtype=action.dtype, device=action.device)
-
-
-def log_mu_hat(g_logit: Tensor, action: Tensor) -> Tensor:
-    """log mu_hat(a|s) = log(g / (1 - g)) + log eta = logit + log eta (paper eq. 7)."""
-    return g_logit + log_eta(action)
 
 
 def relabel_half(action: Tensor, generator: torch.Generator | None = None) -> tuple[Tensor, Tensor]:

@@ -48,6 +48,7 @@ from learner.replay import CrashMemory, ImportanceResamplingReplay, compact, exp
 
 OBS_KEYS = ("image", "speed", "last_action")
 RHO_SLICE = 256
+RHO_CHECK_EVERY = 20  # actor-rho batches between checks against the learner's own g
 
 
 def _obs(td: TensorDictBase) -> tuple[Tensor, Tensor, Tensor]:
@@ -111,6 +112,8 @@ class LearningCore:
         self.held_out: TensorDictBase | None = None
         self._rho_seen = 0
         self._rho_clipped = 0
+        self._actor_rho_batches = 0
+        self._actor_rho_error: list[float] = []
         self.skipped_nonfinite = 0
         """Updates skipped because their loss or a gradient was not finite."""
 
@@ -140,7 +143,12 @@ class LearningCore:
             self.replay.update_rho(index, self.rho(obs)[0])
         self.replay.resum_rho()
 
-    def _warm_start(self) -> None:
+    @property
+    def needs_warm_start(self) -> bool:
+        """The next update would first train g alone and refresh every rho (seconds of work)."""
+        return self.predictive and not self.warm and self.agent.behaviour_warmup_updates > 0
+
+    def warm_start(self) -> None:
         """g alone on the warm-up data, then every rho recomputed with it (module docstring)."""
         for _ in range(self.agent.behaviour_warmup_updates):
             uniform = self._uniform()
@@ -149,19 +157,52 @@ class LearningCore:
             loss.backward()
             self.behaviour_optimizer.step()
         self.refresh_all_rho()
+        self.warm = True
 
     def add(self, transitions: TensorDictBase) -> None:
-        """Store a batch of transitions (torchrl convention, see learner.replay) with its rho."""
+        """Store a batch of transitions (torchrl convention, see learner.replay) with its rho. Items
+        with a finite "log_mu" (the actors' log mu_hat, `learner.rho_at=actor`) take rho from it:
+        only tau is computed here; the others run the discriminator."""
         transitions = transitions.to(self.device)
         if self.predictive:
-            # the discriminator's forward costs ~2x less per item in slices of 256 than at 2048 on CPU
-            parts = [self.rho(part) for part in transitions.split(RHO_SLICE)]
-            rho, clipped = torch.cat([r for r, _ in parts]), torch.cat([c for _, c in parts])
+            rho, clipped = self._rho_at_insert(transitions)
             self._rho_seen += clipped.numel()
             self._rho_clipped += int(clipped.sum())
         else:
             rho = torch.ones(transitions.shape[0], 1, device=self.device)
         self.replay.extend(compact(transitions, rho).to("cpu"))
+
+    @torch.no_grad()
+    def _rho_at_insert(self, transitions: TensorDictBase) -> tuple[Tensor, Tensor]:
+        log_mu = transitions.get("log_mu", None)
+        given = torch.zeros(transitions.shape[0], dtype=torch.bool, device=self.device)
+        if log_mu is not None:
+            given = torch.isfinite(log_mu).reshape(-1)
+        rho = torch.empty(transitions.shape[0], 1, device=self.device)
+        clipped = torch.empty(transitions.shape[0], 1, dtype=torch.bool, device=self.device)
+        if given.any():
+            part = transitions[given]
+            tau = log_tau(part["action"], part["last_action"], self.agent.tau_width)
+            rho[given], clipped[given] = importance_ratio(tau, part["log_mu"], self.agent.rho_max)
+            self._check_actor_rho(part)
+        rest = transitions[~given] if not bool(given.all()) else None
+        if rest is not None:
+            # the discriminator's forward costs ~2x less per item in slices of 256 than at 2048 on CPU
+            parts = [self.rho(p) for p in rest.split(RHO_SLICE)]
+            rho[~given] = torch.cat([r for r, _ in parts])
+            clipped[~given] = torch.cat([c for _, c in parts])
+        return rho, clipped
+
+    @torch.no_grad()
+    def _check_actor_rho(self, part: TensorDictBase) -> None:
+        """Every `RHO_CHECK_EVERY`-th actor-rho batch: mean abs(log rho_actor - log rho_here) on up
+        to 64 items, before the clip (train/rho_actor_log_error): what the actors' older g costs."""
+        self._actor_rho_batches += 1
+        if self._actor_rho_batches % RHO_CHECK_EVERY != 1:
+            return
+        part = part[:64]
+        here = log_mu_hat(self.nets.behaviour(*_obs(part), part["action"]), part["action"])
+        self._actor_rho_error.append(float((part["log_mu"] - here).abs().mean()))
 
     def add_crashes(self, transitions: TensorDictBase) -> None:
         """Keep copies of the steps before terminations in the crash memory (`scale.crash_memory`;
@@ -189,8 +230,8 @@ class LearningCore:
         """One combined update; metrics every `metrics_every` updates, else an empty dict."""
         if not self.ready:
             raise RuntimeError(f"warm-up: {len(self.replay)} of {self.warmup} transitions")
-        if self.predictive and not self.warm and self.agent.behaviour_warmup_updates:
-            self._warm_start()  # a resumed core counts as warm: its g was trained
+        if self.needs_warm_start:
+            self.warm_start()  # a resumed core counts as warm: its g was trained
         self.warm = True
         every = self.agent.rho_refresh_every
         if self.predictive and every and self.updates and self.updates % every == 0:
@@ -325,6 +366,9 @@ class LearningCore:
             metrics["train/rho_bar"] = self.replay.rho_bar
             metrics["train/rho_clip_rate"] = self._rho_clipped / max(self._rho_seen, 1)
             self._rho_seen = self._rho_clipped = 0
+            if self._actor_rho_error:
+                metrics["train/rho_actor_log_error"] = sum(self._actor_rho_error) / len(self._actor_rho_error)
+                self._actor_rho_error = []
             if self.held_out is not None:
                 metrics.update(
                     prediction_error(
@@ -346,6 +390,17 @@ class LearningCore:
         loss = self.ddpg.loss_module
         with loss.target_actor_network_params.to_module(loss.actor_network):
             return {k: v.detach().clone() for k, v in self.nets.policy.state_dict().items()}
+
+    def broadcast_state_dict(self, with_behaviour: bool = False) -> dict[str, Tensor]:
+        """What the weights message carries: the acting network, and with `with_behaviour`
+        (`learner.rho_at=actor`) the discriminator under `behaviour.` names, for actors that
+        compute log mu_hat (actors.acting.Acting.with_log_mu)."""
+        state = dict(self.policy_state_dict())
+        if with_behaviour:
+            if not self.predictive:
+                raise ValueError("learner.rho_at=actor needs a GVF variant: this agent has no discriminator")
+            state.update({f"behaviour.{k}": v for k, v in self.nets.behaviour.state_dict().items()})
+        return state
 
     def state_dict(self, with_replay: bool = False) -> dict[str, Any]:
         state = {name: module.state_dict() for name, module in self.nets.modules().items()}

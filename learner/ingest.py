@@ -2,7 +2,9 @@
 
 A chunk of T steps becomes T transitions in torchrl's layout (see `learner.replay`):
 observation t is (frames[t+1], frames[t]); alpha and beta are observation-aligned (T+1), so
-step t's cumulants are alpha[t+1], beta[t+1] (the next state's, Algorithm 1 line 6).
+step t's cumulants are alpha[t+1], beta[t+1] (the next state's, Algorithm 1 line 6). Chunks
+that carry the actor's log mu_hat (`learner.rho_at=actor`) give a "log_mu" column (NaN for
+those that do not).
 """
 
 from __future__ import annotations
@@ -39,7 +41,7 @@ def chunks_to_transitions(chunks: list[TransitionChunk], next_image: bool = True
         return torch.from_numpy(np.concatenate([get(c) for c in chunks]))
 
     col = lambda x: x.reshape(-1, 1)  # noqa: E731
-    return TensorDict(
+    batch = TensorDict(
         {
             "image": torch.from_numpy(image),
             "speed": cat(lambda c: c.speed[:-1]),
@@ -60,3 +62,7 @@ def chunks_to_transitions(chunks: list[TransitionChunk], next_image: bool = True
         },
         batch_size=[total],
     )
+    if any(c.log_mu is not None for c in chunks):  # NaN where a chunk came without it
+        nan = np.full(1, np.nan, np.float32)
+        batch["log_mu"] = cat(lambda c: col(c.log_mu if c.log_mu is not None else np.repeat(nan, c.num_steps)))
+    return batch

@@ -36,13 +36,23 @@ MAX_STREAMS = 4096  # envs whose last chunk is kept for the crash memory
 class Ingestor:
     """Decode, check and account; see the module docstring."""
 
-    def __init__(self, max_chunk_bytes: int, ingest_batch: int, max_tracks: int = 1024, crash_steps: int = 0) -> None:
+    def __init__(
+        self,
+        max_chunk_bytes: int,
+        ingest_batch: int,
+        max_tracks: int = 1024,
+        crash_steps: int = 0,
+        accept_log_mu: bool = True,
+    ) -> None:
         self.ingest_batch, self.max_tracks, self.crash_steps = ingest_batch, max_tracks, crash_steps
+        self.accept_log_mu = accept_log_mu
+        """False (`learner.rho_at=learner`): a chunk's log_mu is ignored, the learner's g decides rho."""
         self.rejects = wire.RejectCounter(wire.Limits(max_bytes=max_chunk_bytes), logger=log)
         self.seq = SequenceTracker()
         self.tracks: dict[str, int] = {}
         self.returns: deque = deque(maxlen=100)
         self.lags: deque = deque(maxlen=200)
+        self.rho_lags: deque = deque(maxlen=200)  # updates since the discriminator that gave a chunk's log_mu
         self.counters = {"inserted": 0, "episodes": 0, "chunks": 0}
         self.held_out: TensorDict | None = None
         """The first whole episode of one env (time-ordered transitions), once complete."""
@@ -61,6 +71,8 @@ class Ingestor:
             ):
                 continue  # counted by kind and dropped
             self.lags.append(max(0, updates - chunk.policy_version))  # chunks of a previous epoch can be ahead
+            if chunk.log_mu is not None and self.accept_log_mu:
+                self.rho_lags.append(max(0, updates - chunk.behaviour_version))
             self._hold_out(chunk)
             if self.crash_steps:
                 self._see_for_crashes(chunk)
@@ -76,6 +88,8 @@ class Ingestor:
         if not good:
             return None
         batch = chunks_to_transitions(good, next_image=False)
+        if not self.accept_log_mu and "log_mu" in batch.keys():
+            del batch["log_mu"]  # not asked for: an actor must not set its own sampling weight
         self.counters["inserted"] += batch.shape[0]
         self.counters["chunks"] += len(good)
         return batch
@@ -129,6 +143,7 @@ class Ingestor:
             "episodes": self.counters["episodes"],
             "return_mean": float(np.mean(self.returns)) if self.returns else None,
             "policy_lag": float(np.mean(self.lags)) if self.lags else None,
+            "rho_lag": float(np.mean(self.rho_lags)) if self.rho_lags else None,
             "lost_chunks": self.seq.lost,
             "actor_restarts": self.seq.restarts,
             "rejected": self.rejects.total,

@@ -18,6 +18,7 @@ ACTOR_SCALARS = (
     "flow_paused",
     "return_mean",
     "policy_lag",
+    "rho_lag",
 )
 
 

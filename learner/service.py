@@ -31,6 +31,7 @@ from learner.run_log import RunLog
 
 log = logging.getLogger(__name__)
 ROLE = "learner"
+WARM_START_PAUSE_S = 120.0  # longest the warm start may hold the actors; flow() resumes them sooner
 
 
 def resolve_device(name: str) -> str:
@@ -52,7 +53,13 @@ class LearnerService:
         ckpt = Path(self.lc.checkpoint_dir)
         self.ckpt_dir = ckpt if ckpt.is_absolute() else self.run_dir / ckpt
         crash_steps = cfg.scale.crash_steps if cfg.scale.crash_memory else 0
-        self.intake = Ingestor(self.lc.max_chunk_bytes, self.lc.ingest_batch, self.lc.max_tracks, crash_steps)
+        self.intake = Ingestor(
+            self.lc.max_chunk_bytes,
+            self.lc.ingest_batch,
+            self.lc.max_tracks,
+            crash_steps,
+            accept_log_mu=self.lc.rho_at == "actor",
+        )
         self.limiter = RateLimiter(self.core.batch_size, self.lc.samples_per_insert, self.lc.max_owed_updates)
         self.flow_pauses = 0
         if cfg.resume:
@@ -112,7 +119,8 @@ class LearnerService:
     def publish_weights(self) -> None:
         """Broadcast (and serve) the acting weights; non-finite ones are never sent: the learner
         stops with an error instead, and a supervisor resumes it from its last good checkpoint."""
-        tensors = {name: v.detach().cpu().numpy() for name, v in self.core.policy_state_dict().items()}
+        state = self.core.broadcast_state_dict(with_behaviour=self.lc.rho_at == "actor")
+        tensors = {name: v.detach().cpu().numpy() for name, v in state.items()}
         if not all(np.isfinite(t).all() for t in tensors.values()):
             raise FloatingPointError(f"non-finite acting weights at update {self.core.updates}: not published")
         payload = wire.encode(wire.Weights(self.core.updates, tensors, epoch=self.epoch))
@@ -145,7 +153,10 @@ class LearnerService:
         """As many updates as the rate limit owes (at most `max_updates`), publishing and
         checkpointing on their schedules; returns the last metrics."""
         metrics: dict = {}
-        for _ in range(min(self.limiter.owed(self.intake.counters["inserted"], self.core.ready), max_updates)):
+        owed = self.limiter.owed(self.intake.counters["inserted"], self.core.ready)
+        if owed and self.core.needs_warm_start:
+            self.warm_start()
+        for _ in range(min(owed, max_updates)):
             metrics = self.core.update() or metrics
             self.limiter.done += 1
             self.flow(time.monotonic())  # a long run of updates must keep the pause fresh
@@ -155,6 +166,18 @@ class LearnerService:
             if u % self.lc.checkpoint_every == 0:
                 self.save()
         return metrics
+
+    def warm_start(self) -> None:
+        """g's warm start and the first rho refresh hold this loop for seconds: the actors are
+        paused meanwhile, or the inbox overflows (1,909 chunks dropped at the start of a
+        15-minute run, measured), then resumed by `flow` once the data is not ahead."""
+        if self.lc.max_owed_updates:
+            pause = wire.Control("pause", reason="warm start", expires_s=WARM_START_PAUSE_S)
+            self.flow_out.put(wire.encode(pause))
+            self.limiter.paused = True
+            self.flow_pauses += 1
+        self.core.warm_start()
+        self.flow(time.monotonic())
 
     def flow(self, now: float) -> None:
         """Rate limit on the actors' side (`learner.rate_limit`): pause them while the learner is

@@ -31,6 +31,7 @@ POSITIVE = [
     "ratio",
     "transitions_per_s_with_rho",
     "transitions_per_s_flat_out",
+    "transitions_per_s_with_actor_rho",
     "weights_payload_bytes",
     "weights_latency_ms_1",
     "weights_latency_p90_ms_1",
@@ -61,3 +62,6 @@ def test_bench_transport_prints_its_figures_as_json():
     paced = result["rounds"][0]["ingest"]
     assert paced["inbox_dropped"] == 0 and paced["network_lost"] == 0 and paced["rejected"] == 0
     assert paced["inserted_chunks"] == paced["sent"] > 0
+    actor_rho = result["rounds"][0]["ingest_actor_rho"]  # chunks with log_mu pass the checks
+    assert actor_rho["rejected"] == 0 and actor_rho["inserted_chunks"] == actor_rho["sent"] > 0
+    assert isinstance(result["meets_actor_rho_target"], bool)

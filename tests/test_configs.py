@@ -45,11 +45,13 @@ def test_bad_values_are_refused_naming_the_field(override, field):
         ("scale.lr_actor_decay_updates=-1", "lr_actor_decay_updates"),
         ("scale.lr_actor_final=0", "lr_actor_final"),
         ("scale.crash_steps=0", "crash_steps"),
+        ("learner.rho_at=router", "rho_at"),
+        ("agent=ddpg_image learner.rho_at=actor", "rho_at"),
     ],
 )
 def test_bad_learning_values_are_refused_naming_the_field(override, field):
     with pytest.raises(ValueError, match=field):
-        compose_run([override])
+        compose_run(override.split())
 
 
 def test_a_study_job_whose_summary_exists_is_skipped(tmp_path, monkeypatch):

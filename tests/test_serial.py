@@ -55,3 +55,22 @@ def test_learner_rate_limit_pauses_the_actors_instead_of_piling_up_data(tmp_path
     # chunks (16 steps x 2 envs) sent before the pause arrives still land; measured 140
     assert on["inserted"] <= needed + 4 * 32, on
     assert off["inserted"] > 3 * on["inserted"], (on, off)  # measured 2,400
+
+
+def test_the_actors_are_held_while_the_learner_warm_starts_its_discriminator(tmp_path):
+    """g's warm start (agent.behaviour_warmup_updates) blocks the learner's loop: without a pause
+    the actors ran on and the inbox overflowed (1,909 chunks dropped in a 15-minute run)."""
+    overrides = [
+        *TINY,
+        "transport=inproc",
+        "progress=false",
+        "actors.count=1",
+        "learner.max_updates=10",
+        "learner.max_owed_updates=8",
+        "agent.behaviour_warmup_updates=400",
+    ]
+    result = train(compose_run(overrides), str(tmp_path), threading.Event())
+    assert result["updates"] >= 10 and result["flow_pauses"] >= 1
+    needed = 64 + 10 * 32 / 4  # the warm-up, then batch / samples_per_insert per update
+    # chunks (16 steps x 2 envs) sent before the pause arrives still land
+    assert result["inserted"] <= needed + 4 * 32, result

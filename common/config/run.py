@@ -93,6 +93,9 @@ class LearnerConfig:
     """Ask the actors to pause while the data (ingested or in the inbox) is more than this many updates ahead of samples_per_insert (or of the warm-up); 0: never."""
     flow_refresh_s: float = 1.0
     """Seconds between repeats of the learner's pause / resume (late actors learn it; a stale pause expires)."""
+    rho_at: str = "learner"
+    """Where log mu_hat of rho = tau / mu_hat is computed at insert: 'learner' (Algorithm 1), or 'actor':
+    the weights carry the discriminator and actors send log mu_hat in each chunk (GVF variants only)."""
 
 
 @dataclass
@@ -158,6 +161,9 @@ def register() -> None:
     store.store(group="transport", name="transport_schema", node=TransportConfig)
 
 
+RHO_AT = ("learner", "actor")
+
+
 def to_objects(cfg: Any) -> tuple[RunConfig, AgentConfig, ScaleConfig]:
     """A composed DictConfig as typed dataclass objects (validated)."""
     from omegaconf import OmegaConf
@@ -169,4 +175,8 @@ def to_objects(cfg: Any) -> tuple[RunConfig, AgentConfig, ScaleConfig]:
     actor_squash(run.agent, run.scale)  # refuses a bad value naming the field
     check_scale(run.scale)
     check_agent(run.agent)
+    if run.learner.rho_at not in RHO_AT:
+        raise ValueError(f"learner.rho_at must be one of {RHO_AT}, got {run.learner.rho_at!r}")
+    if run.learner.rho_at == "actor" and run.agent.representation != "predictive":
+        raise ValueError(f"learner.rho_at=actor needs a GVF variant, agent {run.agent.name!r} has no discriminator")
     return run, run.agent, run.scale
