@@ -1,0 +1,447 @@
+"""Many actors on one learner: ingest with rho, chunks lost, and the weight broadcast's latency to
+N subscribers, for N emulated actors behind one router or behind the far router of a mesh.
+
+Processes, all started with `spawn` (forking after zenoh is initialised hangs), on 127.0.0.1:
+
+  routers    `common.transport.zenoh_backend.run_router` on free ports. Topology 'router': one,
+             for everyone. 'mesh': router A (the learner's) and router B connected to it (the
+             actors'), configured by deploy/zenoh/router-mesh-{a,b}.json5 where present
+  actors     N emulated actors (bench/scale_procs.py): each one Zenoh session replaying valid
+             TransitionChunks (own key, own seq, congestion control BLOCK) at --rate chunks/s
+             and acking every weights version with the time.time() it arrived. No simulator,
+             no policy, not a process each: up to --per-process share one OS process
+  this one   the learner: a real `LearnerService` whose `ingest()` (bounded inbox, strict decode,
+             sequence gaps, insert with rho) runs in a loop with no training, publishing a
+             Weights message of the real policy every --broadcast-every s, --broadcasts times
+
+For each topology and each N (--actors), two phases of --warmup then at least --seconds (longer
+until the broadcasts are out), with `learner.rho_at=actor`:
+
+  rho_learner  the chunks carry no log mu_hat: the learner runs the discriminator at insert
+               (Algorithm 1, lines 8-10); the weights carry the acting policy
+  rho_actor    the chunks carry the actors' log mu_hat: the learner only forms tau / mu_hat;
+               the weights also carry the discriminator (behaviour.*), as actors would need
+
+Figures per phase: transitions/s inserted in the measured window (and offered), and per second
+spent inside `ingest()` with the chunks per call this load gives (a light load gives small
+batches, which cost more per transition than the full ones of a saturated learner); over the whole
+phase (warm-up and drain too) chunks lost (the learner's seq gaps), chunks missing (sent, never
+received), inbox drops and rejects; the weight latency from publish to arrival at each
+subscriber (p50/p99 over every broadcast x subscriber) and to the last of the N (p50/p99 over
+broadcasts); CPU seconds and resident MB of the learner (this process, which also paces the
+phases), the routers and the actor processes. Per N they are summed or pooled over both phases.
+With --memory-minutes M, the largest N then runs M minutes more per topology (rho at the
+learner, weights every --broadcast-every s), router and learner RSS sampled every
+--memory-every s: first, last and max (is memory flat?). `meets_target` per N: no chunk lost,
+missing or dropped and p99 <= 100 ms (DESIGN.md asks it of N = 256).
+
+Usage: python bench/scale.py [--actors 1 16 64 256] [--topology router mesh] [--rate 1]
+       [--seconds 10] [--warmup 2] [--broadcasts 20] [--broadcast-every 0.5] [--per-process 32]
+       [--memory-minutes 0] [--memory-every 10] [hydra overrides, e.g. learner.ingest_batch=16]
+The last line printed is one JSON object: {"router": {N: figures}, "mesh": {N: ...}, "memory":
+{topology: ...} (with --memory-minutes), "params": {...}}; one line per N goes to stderr as it ends.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import logging
+import multiprocessing as mp
+import os
+import queue
+import sys
+import tempfile
+import time
+from collections import defaultdict
+from pathlib import Path
+
+# run as a script, bench/ comes first on sys.path: the repository root goes there instead, so
+# that `bench.scale_procs` imports here and in the spawned processes that inherit it
+_HERE = Path(__file__).resolve().parent
+sys.path[:] = [p for p in sys.path if Path(p or ".").resolve() != _HERE]
+sys.path.insert(0, str(_HERE.parent))
+
+from bench.scale_procs import (  # noqa: E402
+    MESH_CONFIGS,
+    TOPOLOGIES,
+    actor_name,
+    percentile,
+    start_fleet,
+    start_topology,
+    stop_all,
+    usage,
+)
+from bench.transport import compose  # noqa: E402
+from bench.transport_procs import episode_payloads  # noqa: E402
+from common import wire  # noqa: E402
+
+LATENCY_P99_TARGET_MS = 100.0
+"""DESIGN.md: 256 emulated actors on one learner, 0 chunks lost, weight latency p99 <= 100 ms."""
+ACK_WAIT_S = 5.0
+"""After the last broadcast of a phase, how long acks still count (later ones are missed)."""
+FRAME_SHAPE = (64, 128)
+PHASES = {"rho_learner": False, "rho_actor": True}
+"""Phase -> whether the chunks carry log mu_hat."""
+
+
+class Learner:
+    """The learner side of one topology: the service, the acks of every actor, the readings."""
+
+    def __init__(self, cfg, tcfg, routers: dict, run_dir: str) -> None:
+        from common.transport.zenoh_backend import ZenohTransport
+        from learner.service import LearnerService
+
+        self.cfg, self.routers = cfg, routers
+        self.transport = ZenohTransport(tcfg)
+        self.service = LearnerService(cfg, self.transport, run_dir=run_dir)
+        self.service.open()
+        self.acks = mp.get_context("spawn").Queue()
+        self.version = 0
+        # the Weights of each phase: the acting policy, and the discriminator where actors need it
+        core = self.service.core
+        self.tensors = {
+            log_mu: {k: v.detach().cpu().numpy() for k, v in core.broadcast_state_dict(with_behaviour=log_mu).items()}
+            for log_mu in (False, True)
+        }
+
+    def close(self) -> None:
+        self.service.run_log.close()
+        self.transport.close()
+
+    def publish(self, log_mu: bool) -> tuple[int, float]:
+        """Encode and put the next Weights version; its version and time.time() just before the put."""
+        self.version += 1
+        payload = wire.encode(wire.Weights(self.version, self.tensors[log_mu], epoch=self.service.epoch))
+        at = time.time()
+        self.service.weights_out.put(payload)
+        return self.version, at
+
+    def step(self) -> float:
+        """One ingest; the seconds it took if it inserted anything (busy time), else 0 after a short idle wait."""
+        t = time.perf_counter()
+        if self.service.ingest():
+            return time.perf_counter() - t
+        time.sleep(0.005)  # the learner's own idle wait when nothing arrived
+        return 0.0
+
+    def take_acks(self, receipts: dict) -> None:
+        while True:
+            try:
+                batch = self.acks.get_nowait()
+            except queue.Empty:
+                return
+            for name, version, arrived in batch:
+                receipts[version].setdefault(name, arrived)
+
+    def counters(self) -> dict:
+        s = self.service
+        return {
+            "received": s.chunks_in.received,
+            "dropped": s.chunks_in.dropped,
+            "inserted": s.intake.counters["inserted"],
+            "chunks": s.intake.counters["chunks"],
+            "lost": s.intake.seq.lost,
+            "rejected": s.intake.rejects.total,
+        }
+
+    def readings(self, groups) -> dict:
+        """(CPU s, RSS MB) of the learner, each router, and the actor processes together."""
+        out = {"learner": usage(os.getpid())}
+        out.update({name: usage(p.pid) for name, p in self.routers.items()})
+        per_group = [usage(g.process.pid) for g in groups]
+        out["actors"] = (sum(c for c, _ in per_group), sum(r for _, r in per_group))
+        return out
+
+    def settle(self, received: int, timeout: float = 10.0) -> None:
+        """Ingest until the inbox has received `received` chunks in all and is empty (what was in
+        flight is in), or `timeout` s: chunks still missing then are counted as such."""
+        inbox, deadline = self.service.chunks_in, time.monotonic() + timeout
+        while (inbox.received < received or len(inbox)) and time.monotonic() < deadline:
+            self.step()
+
+    def join(self, groups, names: list[str], timeout: float = 120.0) -> None:
+        """Wait for every actor to be up and to have received a broadcast (subscriptions reach the
+        router(s) some time after they are declared): untimed broadcasts until each acked one."""
+        deadline = time.monotonic() + timeout
+        for g in groups:
+            while not g.ready.wait(0.2):
+                if not g.process.is_alive() or time.monotonic() > deadline:
+                    raise RuntimeError(f"actor process {g.process.name} did not start (exit {g.process.exitcode})")
+        receipts, first, heard = defaultdict(dict), self.version + 1, set()
+        while True:
+            self.publish(False)
+            t = time.monotonic()
+            while time.monotonic() - t < 0.5:
+                self.step()
+                self.take_acks(receipts)
+            heard = {name for v, got in receipts.items() if v >= first for name in got}
+            if heard >= set(names):
+                return
+            if time.monotonic() > deadline:
+                raise RuntimeError(f"{len(set(names) - heard)} of {len(names)} actors never received weights")
+
+    def phase(
+        self,
+        groups,
+        names: list[str],
+        rate: float,
+        log_mu: bool,
+        seconds: float,
+        warmup: float,
+        broadcasts: int | None,
+        every: float,
+        sample_every: float = 0.0,
+    ) -> dict:
+        """The actors send, the learner ingests and broadcasts: the figures of the phase.
+
+        `broadcasts` None: every `every` s until `seconds` are up; `sample_every` > 0: router and
+        learner RSS every that many s (the memory run).
+        """
+        before = self.counters()  # the previous phase ended with an empty inbox
+        start = time.time() + 0.05
+        for g in groups:
+            g.send(log_mu, start)
+        receipts: dict = defaultdict(dict)
+        t = time.perf_counter()
+        while time.perf_counter() - t < warmup:
+            self.step()
+            self.take_acks(receipts)
+        at_t0, read0 = self.counters(), self.readings(groups)
+        inserted0 = at_t0["inserted"]
+        published: dict[int, float] = {}
+        samples: list[dict] = []
+        busy, calls, t0 = 0.0, 0, time.perf_counter()
+        next_broadcast, next_sample = t0, t0
+        while True:
+            now = time.perf_counter()
+            if now - t0 >= seconds and (broadcasts is None or len(published) >= broadcasts):
+                break
+            if (broadcasts is None or len(published) < broadcasts) and now >= next_broadcast:
+                version, at = self.publish(log_mu)
+                published[version] = at
+                next_broadcast += every
+            if sample_every and now >= next_sample:
+                samples.append({name: rss for name, (_, rss) in self.readings([]).items() if name != "actors"})
+                next_sample += sample_every
+            spent = self.step()
+            busy, calls = busy + spent, calls + (spent > 0)
+            self.take_acks(receipts)
+        t1, at_t1 = time.perf_counter(), self.counters()
+        inserted = at_t1["inserted"]
+        read1 = self.readings(groups)
+        stopped = [g.stop() for g in groups]
+        sent = sum(s for s, _ in stopped)
+        self.settle(before["received"] + sent)
+        last = max(published.values(), default=time.time())
+        while time.time() < last + ACK_WAIT_S and any(len(receipts[v]) < len(names) for v in published):
+            self.step()
+            self.take_acks(receipts)
+        after = self.counters()
+        d = {k: after[k] - before[k] for k in after}
+        window, chunk_len = t1 - t0, self.cfg.actor.chunk_len
+
+        # each broadcast x subscriber, and each broadcast to the last of the N
+        each, to_all, missed = [], [], 0
+        for version, at in published.items():
+            got = [receipts[version][n] for n in names if n in receipts[version]]
+            each += [(r - at) * 1e3 for r in got]
+            missed += len(names) - len(got)
+            if len(got) == len(names):
+                to_all.append((max(got) - at) * 1e3)
+        result = {
+            "window_s": round(window, 3),
+            "transitions_per_s": (inserted - inserted0) / window,
+            "offered_transitions_per_s": len(names) * rate * chunk_len,
+            "learner_busy_fraction": busy / window,
+            # per second inside ingest(), at this load's batch size (below a saturated learner's)
+            "ingest_per_busy_s": (inserted - inserted0) / busy if busy else None,
+            "chunks_per_ingest": (at_t1["chunks"] - at_t0["chunks"]) / calls if calls else None,
+            "chunks_sent": sent,
+            "chunks_received": d["received"],
+            "chunks_inserted": d["chunks"],
+            "chunks_lost": d["lost"],
+            # never reached the learner: losses at the end of a stream, which seq gaps cannot see
+            "chunks_missing": sent - d["received"],
+            "inbox_dropped": d["dropped"],
+            "rejected": d["rejected"],
+            "send_lag_max_ms": max(lag for _, lag in stopped) * 1e3,
+            "broadcasts": len(published),
+            "weights_acks": len(each),
+            "weights_missed": missed,
+            "weights_latency_p50_ms": percentile(each, 50),
+            "weights_latency_p99_ms": percentile(each, 99),
+            "weights_all_p50_ms": percentile(to_all, 50),
+            "weights_all_p99_ms": percentile(to_all, 99),
+            "cpu_s": {k: read1[k][0] - read0[k][0] for k in read1},
+            "rss_mb": {k: v[1] for k, v in read1.items()},
+            "_latencies": each,
+        }
+        if samples:
+            result["rss_samples"] = samples
+        return result
+
+
+def run_case(learner: Learner, ctx, actor_cfg, n: int, args, memory_minutes: float) -> tuple[dict, dict | None]:
+    """N actors: both phases, then the memory run if asked; the actors are stopped at the end."""
+    cfg = learner.cfg
+    names = [actor_name(n, i) for i in range(n)]
+    groups = start_fleet(
+        ctx, actor_cfg, cfg.run, n, args.per_process, cfg.actor.chunk_len, FRAME_SHAPE, args.rate, learner.acks
+    )
+    try:
+        learner.join(groups, names)
+        shared = dict(groups=groups, names=names, rate=args.rate, warmup=args.warmup, every=args.broadcast_every)
+        phases = {
+            phase: learner.phase(**shared, log_mu=log_mu, seconds=args.seconds, broadcasts=args.broadcasts)
+            for phase, log_mu in PHASES.items()
+        }
+        memory = None
+        if memory_minutes > 0:
+            memory = learner.phase(
+                **shared, log_mu=False, seconds=memory_minutes * 60, broadcasts=None, sample_every=args.memory_every
+            )
+    finally:
+        for g in groups:
+            g.quit()
+        stop_all([g.process for g in groups], timeout=30)
+    return summarize_case(n, len(groups), phases), memory and summarize_memory(memory, memory_minutes)
+
+
+def summarize_case(n: int, processes: int, phases: dict) -> dict:
+    each = [x for p in phases.values() for x in p.pop("_latencies")]
+    totals = {k: sum(p[k] for p in phases.values()) for k in ("chunks_lost", "chunks_missing", "inbox_dropped")}
+    p99 = percentile(each, 99)
+    return {
+        "actors": n,
+        "processes": processes,
+        **{f"transitions_per_s_{name}": p["transitions_per_s"] for name, p in phases.items()},
+        **{f"ingest_per_busy_s_{name}": p["ingest_per_busy_s"] for name, p in phases.items()},
+        **totals,
+        "rejected": sum(p["rejected"] for p in phases.values()),
+        "weights_latency_p50_ms": percentile(each, 50),
+        "weights_latency_p99_ms": p99,
+        "weights_acks": len(each),
+        "weights_missed": sum(p["weights_missed"] for p in phases.values()),
+        "meets_target": not any(totals.values()) and p99 is not None and p99 <= LATENCY_P99_TARGET_MS,
+        "phases": phases,
+    }
+
+
+def summarize_memory(m: dict, minutes: float) -> dict:
+    each = m.pop("_latencies")
+    samples = m.pop("rss_samples")
+    rss = {
+        role: {
+            "first_mb": samples[0][role],
+            "last_mb": samples[-1][role],
+            "max_mb": max(s[role] for s in samples),
+            "growth_mb": samples[-1][role] - samples[0][role],
+        }
+        for role in samples[0]
+    }
+    keep = ("transitions_per_s", "chunks_sent", "chunks_lost", "chunks_missing", "inbox_dropped", "rejected")
+    return {
+        "minutes": minutes,
+        "samples": len(samples),
+        "rss": rss,
+        **{k: m[k] for k in keep},
+        "weights_latency_p50_ms": percentile(each, 50),
+        "weights_latency_p99_ms": percentile(each, 99),
+        "weights_missed": m["weights_missed"],
+        "cpu_s": m["cpu_s"],
+    }
+
+
+def rounded(x):
+    if isinstance(x, float):
+        return round(x, 3)
+    if isinstance(x, dict):
+        return {k: rounded(v) for k, v in x.items()}
+    if isinstance(x, list):
+        return [rounded(v) for v in x]
+    return x
+
+
+def main(argv: list[str] | None = None) -> dict:
+    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser.add_argument("--actors", type=int, nargs="+", default=[1, 16, 64, 256], help="emulated actor counts N")
+    parser.add_argument("--topology", nargs="+", choices=TOPOLOGIES, default=list(TOPOLOGIES), help="router layouts")
+    parser.add_argument("--rate", type=float, default=1.0, help="chunks/s each emulated actor sends")
+    parser.add_argument("--seconds", type=float, default=10.0, help="measured seconds per phase (at least)")
+    parser.add_argument("--warmup", type=float, default=2.0, help="unmeasured seconds before each phase")
+    parser.add_argument("--broadcasts", type=int, default=20, help="timed weight broadcasts per phase")
+    parser.add_argument("--broadcast-every", type=float, default=0.5, help="seconds between weight broadcasts")
+    parser.add_argument("--per-process", type=int, default=32, help="emulated actors packed in one OS process")
+    parser.add_argument("--memory-minutes", type=float, default=0.0, help="then run the largest N this long")
+    parser.add_argument("--memory-every", type=float, default=10.0, help="seconds between RSS samples of that run")
+    parser.add_argument("overrides", nargs="*", help="hydra overrides of the run config, e.g. learner.ingest_batch=16")
+    args = parser.parse_args(argv)
+    if min(args.actors) < 1 or args.rate <= 0 or args.per_process < 1 or args.broadcasts < 1:
+        parser.error("--actors, --rate, --per-process and --broadcasts must be positive")
+    logging.basicConfig(level=logging.WARNING, stream=sys.stderr)
+
+    # rho_at=actor: the learner takes a chunk's log mu_hat where there is one, else runs g itself
+    cfg = compose(["run=bench-scale", "learner.device=cpu", "transport=local", "learner.rho_at=actor", *args.overrides])
+    chunk_bytes = {
+        phase: len(episode_payloads(cfg.actor.chunk_len, FRAME_SHAPE, seed=1, log_mu=log_mu)[0][0])
+        for phase, log_mu in PHASES.items()
+    }
+    ctx = mp.get_context("spawn")
+    actors = sorted(set(args.actors))
+    results: dict = {}
+    memory: dict = {}
+    weights_bytes: dict = {}
+    started = time.perf_counter()
+    for topology in args.topology:
+        stop = ctx.Event()
+        routers: dict = {}
+        learner = None
+        tmp = tempfile.TemporaryDirectory(prefix="bench-scale-")
+        try:
+            learner_cfg, actor_cfg, routers = start_topology(ctx, cfg.transport, topology, stop)
+            learner = Learner(cfg, learner_cfg, routers, tmp.name)
+            weights_bytes = {
+                phase: len(wire.encode(wire.Weights(0, learner.tensors[log_mu]))) for phase, log_mu in PHASES.items()
+            }
+            results[topology] = {}
+            for n in actors:
+                minutes = args.memory_minutes if n == actors[-1] else 0.0
+                case, mem = run_case(learner, ctx, actor_cfg, n, args, minutes)
+                results[topology][str(n)] = case
+                print(json.dumps({"topology": topology, **rounded(case)}), file=sys.stderr, flush=True)
+                if mem is not None:
+                    memory[topology] = {"actors": n, **mem}
+        finally:
+            if learner is not None:
+                learner.close()
+            stop.set()
+            stop_all(list(routers.values()))
+            tmp.cleanup()
+    out = {**results}
+    if memory:
+        out["memory"] = memory
+    out["params"] = {
+        **{k: getattr(args, k) for k in ("actors", "topology", "rate", "seconds", "warmup", "broadcasts")},
+        **{k: getattr(args, k) for k in ("broadcast_every", "per_process", "memory_minutes", "memory_every")},
+        "mesh_configs": all((MESH_CONFIGS / f"router-mesh-{s}.json5").exists() for s in "ab"),
+        "chunk_len": cfg.actor.chunk_len,
+        "chunk_bytes": chunk_bytes,
+        "weights_payload_bytes": weights_bytes,
+        "frame_shape": list(FRAME_SHAPE),
+        "ingest_batch": cfg.learner.ingest_batch,
+        "inbox_chunks": cfg.learner.inbox_chunks,
+        "buffer_size": cfg.scale.buffer_size,
+        "scale": cfg.scale.name,
+        "agent": cfg.agent.name,
+        "torch_threads": cfg.learner.torch_threads,
+        "latency_p99_target_ms": LATENCY_P99_TARGET_MS,
+        "cpus": os.cpu_count(),
+        "overrides": args.overrides,
+        "wall_s": time.perf_counter() - started,
+    }
+    return rounded(out)
+
+
+if __name__ == "__main__":
+    print(json.dumps(main()), flush=True)
