@@ -85,8 +85,10 @@ SlurmdPidFile=$RUN_DIR/slurmd.pid
 SlurmctldLogFile=$LOG_DIR/slurmctld.log
 SlurmdLogFile=$LOG_DIR/slurmd.log
 TaskProlog=$CONF_DIR/task_prolog.sh
-# a cancelled job's processes get 10 s between SIGTERM and SIGKILL
-KillWait=10
+# a cancelled job's processes get 30 s between SIGTERM and SIGKILL (the default, said here): time to close cleanly
+KillWait=30
+# refuse at submission a job no node can run (more CPUs per task than the node has) instead of pending for ever
+EnforcePartLimits=ALL
 # no mail server here
 MailProg=/bin/true
 # scheduling every second instead of the default 60 s backfill sweep: jobs start within seconds
