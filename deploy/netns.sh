@@ -5,12 +5,22 @@
 #   PREFIX-l  the learner host   192.0.2.2
 #   PREFIX-a  the actors host    192.0.2.3
 #
-# Usage: deploy/netns.sh up|down|status [PREFIX]      (PREFIX defaults to gvf)
+# or, with mesh-up, two sites joined by their routers (deploy/README.md, "Router mesh"):
+#
+#   PREFIX-ra  site A: router A, the learner  192.0.2.1
+#   PREFIX-rb  router B of site B             192.0.2.2 (to site A), 198.51.100.1 (to its actors)
+#   PREFIX-ab  the actors of site B           198.51.100.2
+#
+# PREFIX-rb does not forward IP (a new namespace never does): the actors reach site A only
+# through router B, as actors on a rack network that only its router leaves.
+#
+# Usage: deploy/netns.sh up|down|status|mesh-up|mesh-down|mesh-status [PREFIX]  (PREFIX: gvf)
 # Then run each role with `ip netns exec PREFIX-x ...` (deploy/README.md, "Try it on one machine").
 #
-# 192.0.2.0/24 is TEST-NET-1 (RFC 5737), never routed; every interface and address is created
-# inside the namespaces, none in the host's own network. `down` deletes the namespaces, which
-# removes their interfaces and stops nothing else: end the processes started in them first.
+# 192.0.2.0/24 and 198.51.100.0/24 are TEST-NET-1 and -2 (RFC 5737), never routed; every
+# interface and address is created inside the namespaces, none in the host's own network. `down`
+# deletes the namespaces, which removes their interfaces and stops nothing else: end the
+# processes started in them first.
 set -euo pipefail
 
 cmd=${1:-}
@@ -18,6 +28,9 @@ prefix=${2:-gvf}
 subnet=192.0.2
 roles=(r l a)
 declare -A host=([r]=1 [l]=2 [a]=3)
+if [[ $cmd == mesh-* ]]; then
+    roles=(ra rb ab)
+fi
 
 exists() { ip netns list | awk '{print $1}' | grep -qx "$1"; }
 
@@ -42,6 +55,28 @@ up() {
     status
 }
 
+mesh_up() {
+    local a=$prefix-ra b=$prefix-rb actors=$prefix-ab
+    trap 'echo "$0: setup failed, removing the namespaces" >&2; down' ERR
+    for role in "${roles[@]}"; do
+        ip netns add "$prefix-$role"
+        ip -n "$prefix-$role" link set lo up
+    done
+    # the link between the sites: site A's eth0 to router B's to-a
+    ip -n "$a" link add eth0 type veth peer name to-a netns "$b"
+    ip -n "$a" addr add 192.0.2.1/24 dev eth0
+    ip -n "$a" link set eth0 up
+    ip -n "$b" addr add 192.0.2.2/24 dev to-a
+    ip -n "$b" link set to-a up
+    # site B's rack: router B's to-actors to the actors' eth0
+    ip -n "$b" link add to-actors type veth peer name eth0 netns "$actors"
+    ip -n "$b" addr add 198.51.100.1/24 dev to-actors
+    ip -n "$b" link set to-actors up
+    ip -n "$actors" addr add 198.51.100.2/24 dev eth0
+    ip -n "$actors" link set eth0 up
+    status
+}
+
 down() {
     for role in "${roles[@]}"; do
         if exists "$prefix-$role"; then
@@ -62,7 +97,8 @@ status() {
 
 case $cmd in
     up) up ;;
-    down) down ;;
-    status) status ;;
-    *) echo "usage: $0 up|down|status [PREFIX]" >&2; exit 2 ;;
+    mesh-up) mesh_up ;;
+    down | mesh-down) down ;;
+    status | mesh-status) status ;;
+    *) echo "usage: $0 up|down|status|mesh-up|mesh-down|mesh-status [PREFIX]" >&2; exit 2 ;;
 esac
