@@ -309,6 +309,27 @@ def test_zenoh_full_inbox_counts_drops(router_port):
         assert [r.payload for r in sub.drain()] == [bytes([i]) for i in range(4)]
 
 
+def test_a_publisher_busy_in_another_thread_does_not_stop_close(router_port, monkeypatch):
+    """An actor stopped while its sender thread was still in a blocking put exited 1: undeclare
+    raised RuntimeError ('Already borrowed') out of close. The rest must still close."""
+    from common.transport.zenoh_backend import ZenohPublisher, ZenohTransport
+
+    t = ZenohTransport(client_cfg(router_port))
+    after = t.publisher(Keys("busy").episodes("a0"))
+    busy = t.publisher(Keys("busy").control)  # closed first: owned objects close in reverse
+    undeclare, closed = ZenohPublisher.close, []
+
+    def close(self):
+        if self is busy:
+            raise RuntimeError("Already borrowed")
+        closed.append(self.key)
+        undeclare(self)
+
+    monkeypatch.setattr(ZenohPublisher, "close", close)
+    t.close()  # raises nothing
+    assert closed == [after.key] and t.session.is_closed()
+
+
 def test_zenoh_queryable_answers_latest_weights(router_port):
     from common.transport.zenoh_backend import ZenohTransport
 

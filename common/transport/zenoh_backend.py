@@ -210,8 +210,9 @@ class ZenohTransport:
             for obj in reversed(owned):
                 try:
                     obj.close()
-                except zenoh.ZError as exc:
-                    # keep closing the rest: one failed undeclare must not leak the session
+                except (zenoh.ZError, RuntimeError) as exc:
+                    # keep closing the rest: one failed undeclare must not leak the session. RuntimeError
+                    # ("Already borrowed"): a put still blocked on a sender thread holds the publisher
                     log.warning("closing %s failed: %s", type(obj).__name__, exc)
         finally:
             self.session.close()
