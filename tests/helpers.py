@@ -26,6 +26,26 @@ TINY = [
 ]
 
 
+INPROC = ["transport=inproc", "progress=false", "actors.count=1"]
+
+
+def run_inproc(overrides: list[str], run_dir, watchdog_s: float = 120.0) -> tuple[dict, bool]:
+    """gvf-train with every role a thread of this process (INPROC + TINY + `overrides`); returns
+    its result and whether it ended by itself (learner.max_updates) before the watchdog."""
+    import threading
+
+    from common.launch import train
+
+    stop = threading.Event()
+    watchdog = threading.Timer(watchdog_s, stop.set)  # only if the run does not end by itself
+    watchdog.start()
+    try:
+        result = train(compose_run([*TINY, *INPROC, *overrides]), str(run_dir), stop)
+    finally:
+        watchdog.cancel()
+    return result, not stop.is_set()
+
+
 def free_port() -> int:
     with socket.socket() as s:
         s.bind(("127.0.0.1", 0))

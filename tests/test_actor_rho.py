@@ -3,7 +3,6 @@ discriminator, the learner only combines it with tau. The rho stored is the one 
 would have computed itself with the same weights."""
 
 import dataclasses
-import threading
 
 import numpy as np
 import pytest
@@ -11,27 +10,17 @@ import torch
 
 from actors.acting import Acting
 from common import wire
-from common.config.agent import AgentConfig, ScaleConfig
+from common.config.agent import AgentConfig
 from common.config.run import ActorConfig
-from common.launch import train
 from common.wire_rules import check_chunk
 from learner.core import LearningCore
 from learner.ingest import chunks_to_transitions
 from learner.ingestor import Ingestor
-from tests.helpers import TINY, compose_run
+from tests.helpers import run_inproc
 from tests.test_ingestor import inbox
+from tests.test_update import TINY as TINY_SCALE
 
-SCALE = ScaleConfig(
-    name="tiny",
-    conv_channels=[4, 8, 8, 8, 8],
-    gvf_hidden=[32, 32],
-    behaviour_hidden=[32, 16],
-    policy_hidden=[32, 16],
-    image_policy_hidden=[32, 16],
-    batch_size=16,
-    buffer_size=300,
-    warmup=200,
-)
+SCALE = TINY_SCALE
 
 
 def random_chunk(seed: int, steps: int = 12, seq: int = 0) -> wire.TransitionChunk:
@@ -156,14 +145,6 @@ def test_the_intake_reports_how_old_the_actors_discriminator_is(core):
 
 
 def test_an_inproc_run_with_rho_at_actor_trains_on_the_actors_log_mu(tmp_path):
-    overrides = ["transport=inproc", "progress=false", "actors.count=1", "learner.max_updates=30"]
-    cfg = compose_run([*TINY, *overrides, "learner.rho_at=actor", "learner.publish_every=5"])
-    stop = threading.Event()
-    watchdog = threading.Timer(120, stop.set)  # only if the run does not end by itself
-    watchdog.start()
-    try:
-        result = train(cfg, str(tmp_path), stop)
-    finally:
-        watchdog.cancel()
-    assert not stop.is_set() and result["updates"] >= 30
+    result, ended = run_inproc(["learner.max_updates=30", "learner.rho_at=actor"], tmp_path)
+    assert ended and result["updates"] >= 30
     assert result["rejected"] == 0 and result["rho_lag"] is not None  # chunks came with log_mu and were used

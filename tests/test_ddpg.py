@@ -17,24 +17,29 @@ def make(obs_dim: int, n_actions: int, **kwargs) -> DDPG:
     return DDPG(actor, critic, actor_in_keys=["phi"], critic_in_keys=["phi", "action"], **kwargs)
 
 
+def random_batch(n: int) -> TensorDict:
+    """n transitions with a 3-dim phi, random actions in [-1, 1], none terminal."""
+    return TensorDict(
+        {
+            "phi": torch.randn(n, 3),
+            "action": torch.rand(n, 2) * 2 - 1,
+            "next": {
+                "phi": torch.randn(n, 3),
+                "reward": torch.randn(n, 1),
+                "done": torch.zeros(n, 1, dtype=torch.bool),
+                "terminated": torch.zeros(n, 1, dtype=torch.bool),
+            },
+        },
+        [n],
+    )
+
+
 def test_soft_update_moves_targets_by_tau_and_losses_touch_their_own_networks():
     torch.manual_seed(0)
     ddpg = make(3, 2, target_update=0.001, lr_actor=1e-2, lr_critic=1e-2)
     params = ddpg.loss_module
     before = {k: v.clone() for k, v in params.target_actor_network_params.items(True, True)}
-    batch = TensorDict(
-        {
-            "phi": torch.randn(16, 3),
-            "action": torch.rand(16, 2) * 2 - 1,
-            "next": {
-                "phi": torch.randn(16, 3),
-                "reward": torch.randn(16, 1),
-                "done": torch.zeros(16, 1, dtype=torch.bool),
-                "terminated": torch.zeros(16, 1, dtype=torch.bool),
-            },
-        },
-        [16],
-    )
+    batch = random_batch(16)
     ddpg.zero_grad()
     _, out = ddpg.loss(batch)
     out["loss_actor"].backward()
@@ -49,19 +54,7 @@ def test_soft_update_moves_targets_by_tau_and_losses_touch_their_own_networks():
 def test_actor_step_size_decays_linearly_then_holds_and_resumes_where_it_was():
     torch.manual_seed(0)
     ddpg = make(3, 2, lr_actor=1e-3, lr_critic=1e-2, lr_actor_decay_updates=4, lr_actor_final=0.25)
-    batch = TensorDict(
-        {
-            "phi": torch.randn(8, 3),
-            "action": torch.rand(8, 2) * 2 - 1,
-            "next": {
-                "phi": torch.randn(8, 3),
-                "reward": torch.randn(8, 1),
-                "done": torch.zeros(8, 1, dtype=torch.bool),
-                "terminated": torch.zeros(8, 1, dtype=torch.bool),
-            },
-        },
-        [8],
-    )
+    batch = random_batch(8)
     seen = []
     for _ in range(6):
         seen.append(ddpg.actor_optimizer.param_groups[0]["lr"])

@@ -5,22 +5,14 @@ import threading
 from pathlib import Path
 
 from common.launch import train
-from tests.helpers import TINY, compose_run
+from tests.helpers import TINY, compose_run, run_inproc
 
 ROOT = Path(__file__).resolve().parents[1]
 
 
 def test_inproc_run_trains_in_one_process_and_stops_by_itself_at_max_updates(tmp_path):
-    overrides = ["transport=inproc", "progress=false", "actors.count=1", "learner.max_updates=30"]
-    cfg = compose_run([*TINY, *overrides, "scale.crash_memory=500", "scale.crash_steps=8"])
-    stop = threading.Event()
-    watchdog = threading.Timer(120, stop.set)  # only if the run does not end by itself
-    watchdog.start()
-    try:
-        result = train(cfg, str(tmp_path), stop)
-    finally:
-        watchdog.cancel()
-    assert not stop.is_set(), "the run did not end at learner.max_updates"
+    result, ended = run_inproc(["learner.max_updates=30", "scale.crash_memory=500", "scale.crash_steps=8"], tmp_path)
+    assert ended, "the run did not end at learner.max_updates"
     assert not [t.name for t in threading.enumerate() if t.name in ("learner", "actor-0")]  # every role stopped
     watch = (ROOT / "docs" / "wire.md").read_text().split("## What an outside sender can watch")[1].split("##")[0]
     fields = set(re.findall(r"`([a-z_]+)`", watch.split("On the wire")[0])) - {"progress"}
