@@ -121,11 +121,11 @@ class LearningCore:
     @torch.no_grad()
     def rho(self, td: TensorDictBase) -> tuple[Tensor, Tensor]:
         """rho = tau(a|s) / mu_hat(a|s), clipped; and which ones were clipped."""
-        action = td["action"]
-        logit = self.nets.behaviour(*_obs(td), action)
-        return importance_ratio(
-            log_tau(action, td["last_action"], self.agent.tau_width), log_mu_hat(logit, action), self.agent.rho_max
-        )
+        return self._rho_from_log_mu(td["action"], td["last_action"], self._log_mu(td))
+
+    def _log_mu(self, td: TensorDictBase) -> Tensor:
+        """log mu_hat(a|s) under the current discriminator."""
+        return log_mu_hat(self.nets.behaviour(*_obs(td), td["action"]), td["action"])
 
     @torch.no_grad()
     def refresh_all_rho(self, slice_size: int = 4 * RHO_SLICE) -> None:
@@ -206,8 +206,7 @@ class LearningCore:
         if self._actor_rho_batches % RHO_CHECK_EVERY != 1:
             return
         part = part[:64]
-        here = log_mu_hat(self.nets.behaviour(*_obs(part), part["action"]), part["action"])
-        self._actor_rho_error.append(float((part["log_mu"] - here).abs().mean()))
+        self._actor_rho_error.append(float((part["log_mu"] - self._log_mu(part)).abs().mean()))
 
     def add_crashes(self, transitions: TensorDictBase) -> None:
         """Keep copies of the steps before terminations in the crash memory (`scale.crash_memory`;
