@@ -116,3 +116,14 @@ def certs(tmp_path_factory) -> Path:
     out = tmp_path_factory.mktemp("tls") / "certs"
     subprocess.run(["bash", str(DEPLOY / "make_test_certs.sh"), str(out)], check=True, capture_output=True, timeout=60)
     return out
+
+
+def rx_bytes(ns: str, dev: str) -> int:
+    """Bytes received so far on network device `dev` inside namespace `ns`."""
+    out = subprocess.run(
+        ["ip", "netns", "exec", ns, "cat", f"/sys/class/net/{dev}/statistics/rx_bytes"],
+        capture_output=True,
+        text=True,
+        check=True,
+    )
+    return int(out.stdout)

@@ -19,6 +19,7 @@ from pathlib import Path
 
 import pytest
 
+from tests.deploy_helpers import rx_bytes
 from tests.helpers import BIN, TINY, stop
 
 # 25-55 s on an idle 2-core machine; 16 min at nice 19 beside a training run, hence the long timeouts
@@ -94,16 +95,6 @@ def gvfctl(ns, command):
         timeout=300,
         cwd=REPO,
     )
-
-
-def rx_bytes(ns, dev):
-    out = subprocess.run(
-        ["ip", "netns", "exec", ns, "cat", f"/sys/class/net/{dev}/statistics/rx_bytes"],
-        capture_output=True,
-        text=True,
-        check=True,
-    )
-    return int(out.stdout)
 
 
 def test_actors_behind_a_far_router_train_the_learner_and_survive_its_restart(mesh, tmp_path):

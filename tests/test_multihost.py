@@ -15,6 +15,7 @@ import time
 
 import pytest
 
+from tests.deploy_helpers import rx_bytes
 from tests.helpers import BIN, TINY, stop
 
 pytestmark = pytest.mark.multihost
@@ -63,16 +64,6 @@ def in_ns(ns, name, args, log):
     return subprocess.Popen(
         ["ip", "netns", "exec", ns, str(BIN / name), *args], stdout=open(log, "wb"), stderr=subprocess.STDOUT, env=env
     )
-
-
-def rx_bytes(ns, dev):
-    out = subprocess.run(
-        ["ip", "netns", "exec", ns, "cat", f"/sys/class/net/{dev}/statistics/rx_bytes"],
-        capture_output=True,
-        text=True,
-        check=True,
-    )
-    return int(out.stdout)
 
 
 def test_router_learner_and_two_actors_in_three_namespaces(namespaces, tmp_path):
