@@ -8,15 +8,13 @@ networks made functional with `convert_to_functional`, target copies of the pert
 actor and the twin critics that `torchrl.objectives.SoftUpdate` moves (BCQ: tau = 0.005),
 a TD(0) value estimator (`make_value_estimator`, gamma), `set_keys(observation=...)`.
 
-- `VAE` G_omega(a|s): (s, a) -> 256 -> mean, log std of z (d_z = 4); (s, z) -> 256 -> a.
-  Loss = MSE(reconstruction, a) + 0.5 * KL(N(mean, std) || N(0, 1)). Sampling draws
-  z ~ N(0, 1) clipped to [-0.5, 0.5] (BCQ), the action clipped to the box.
-- `Perturbation` xi_phi(s, a, Phi): (s, a) -> 256 -> Phi * tanh(.), Phi = 0.05; the action
-  a + xi is clipped to [-1, 1]^2. Loss = -Q1(s, a + xi(s, a)), a ~ G(s) (BCQ, Algorithm 1).
-- `TwinQ` Q1, Q2: (s, a) -> 256 -> 1 each. Target y = r + gamma * (1 - terminated) * max_j
-  [lambda min(Q1', Q2') + (1 - lambda) max(Q1', Q2')](s', a_j), lambda = 0.75, over n = 10
-  actions a_j = a~_j + xi'(s', a~_j), a~_j ~ G(s') (soft clipped double Q-learning).
-  Loss = MSE(Q1, y) + MSE(Q2, y).
+Networks (`common.bcq_networks`): G_omega (VAE), the perturbation xi (Phi = 0.05) and the twin
+critics. Losses:
+- VAE: MSE(reconstruction, a) + 0.5 * KL(N(mean, std) || N(0, 1)).
+- Actor: -Q1(s, a + xi(s, a)), a ~ G(s) (BCQ, Algorithm 1).
+- Critics: target y = r + gamma * (1 - terminated) * max_j [lambda min(Q1', Q2') + (1 - lambda)
+  max(Q1', Q2')](s', a_j), lambda = 0.75, over n = 10 actions a_j = a~_j + xi'(s', a~_j),
+  a~_j ~ G(s') (soft clipped double Q-learning); loss MSE(Q1, y) + MSE(Q2, y).
 - Acting: n = 10 actions a_j as above with the online networks, the argmax of Q1.
 
 Each loss reaches only its own network (G is sampled without gradient for the actor and
@@ -29,70 +27,19 @@ to the Jackal's [-pi/2, pi/2] x [0.1, 0.6].
 
 from __future__ import annotations
 
+import copy
 from dataclasses import dataclass
 
 import torch
 from tensordict import TensorDict, TensorDictBase, TensorDictParams
 from tensordict.nn import dispatch
 from tensordict.utils import NestedKey
-from torch import Tensor, nn
+from torch import Tensor
 from torchrl.objectives import LossModule, SoftUpdate, ValueEstimators
 from torchrl.objectives.utils import dispatch_value_estimator
 
-from common.networks import ACTION_DIM, mlp
-
-HIDDEN = (256,)
-
-
-class VAE(nn.Module):
-    """State-conditioned generative model of the data's actions, G_omega(a|s)."""
-
-    def __init__(self, state_dim: int, action_dim: int = ACTION_DIM, latent_dim: int = 4, hidden=HIDDEN):
-        super().__init__()
-        self.latent_dim = latent_dim
-        self.encoder = mlp(state_dim + action_dim, hidden, 2 * latent_dim)  # mean, log std
-        self.decoder = mlp(state_dim + latent_dim, hidden, action_dim)
-
-    def forward(self, s: Tensor, a: Tensor) -> tuple[Tensor, Tensor, Tensor]:
-        """Reconstruction (unclipped, so the loss keeps its gradient at the box edge), mean, std."""
-        mean, log_std = self.encoder(torch.cat([s, a], -1)).chunk(2, -1)
-        std = log_std.clamp(-4.0, 15.0).exp()  # BCQ's clamp, for numerical stability
-        z = mean + std * torch.randn_like(std)
-        return self.decoder(torch.cat([s, z], -1)), mean, std
-
-    def decode(self, s: Tensor) -> Tensor:
-        """Sample a ~ G(s): z ~ N(0, 1) clipped to [-0.5, 0.5] keeps samples near the data's modes."""
-        z = torch.randn(*s.shape[:-1], self.latent_dim, device=s.device, dtype=s.dtype).clamp(-0.5, 0.5)
-        return self.decoder(torch.cat([s, z], -1)).clamp(-1.0, 1.0)
-
-
-class Perturbation(nn.Module):
-    """xi_phi(s, a, Phi): moves a generated action by at most Phi (BCQ's Phi, not the representation phi)."""
-
-    def __init__(self, state_dim: int, action_dim: int = ACTION_DIM, Phi: float = 0.05, hidden=HIDDEN):
-        super().__init__()
-        self.Phi = Phi
-        self.net = mlp(state_dim + action_dim, hidden, action_dim)
-
-    def forward(self, s: Tensor, a: Tensor) -> Tensor:
-        xi = self.Phi * torch.tanh(self.net(torch.cat([s, a], -1)))
-        return (a + xi).clamp(-1.0, 1.0)
-
-
-class TwinQ(nn.Module):
-    """Two independent critics; forward gives (..., 2) = [Q1, Q2]."""
-
-    def __init__(self, state_dim: int, action_dim: int = ACTION_DIM, hidden=HIDDEN):
-        super().__init__()
-        self.q1_net = mlp(state_dim + action_dim, hidden, 1)
-        self.q2_net = mlp(state_dim + action_dim, hidden, 1)
-
-    def forward(self, s: Tensor, a: Tensor) -> Tensor:
-        x = torch.cat([s, a], -1)
-        return torch.cat([self.q1_net(x), self.q2_net(x)], -1)
-
-    def q1(self, s: Tensor, a: Tensor) -> Tensor:
-        return self.q1_net(torch.cat([s, a], -1)).squeeze(-1)
+from common.bcq_networks import HIDDEN, VAE, BCQPolicy, Perturbation, TwinQ, make_bcq_networks, select_action
+from common.networks import ACTION_DIM
 
 
 class BCQLoss(LossModule):
@@ -173,12 +120,12 @@ class BCQLoss(LossModule):
         return self
 
     # -- the maths ---------------------------------------------------------------------------
-    def _sample_actions(self, s: Tensor, actor_params: TensorDictBase) -> Tensor:
-        """a~ ~ G(s), perturbed by xi with `actor_params` (online or target)."""
+    def _sample_actions(self, s: Tensor, actor_params: TensorDictBase, n: int = 1) -> Tensor:
+        """n actions a~ ~ G(s) per state, perturbed by xi with `actor_params` (online or target), (B * n, d_a)."""
         with self.vae_network_params.to_module(self.vae_network):
-            a = self.vae_network.decode(s)
+            a = self.vae_network.decode(s, n)
         with actor_params.to_module(self.actor_network):
-            return self.actor_network(s, a)
+            return self.actor_network(s, a, n)
 
     def vae_loss(self, s: Tensor, a: Tensor) -> tuple[Tensor, Tensor]:
         with self.vae_network_params.to_module(self.vae_network):
@@ -190,10 +137,9 @@ class BCQLoss(LossModule):
         k = self.tensor_keys
         s, a, s_next = td.get(k.observation), td.get(k.action), td.get(("next", k.observation))
         with torch.no_grad():
-            s_rep = s_next.repeat_interleave(self.n_samples, 0)
-            a_rep = self._sample_actions(s_rep, self.target_actor_network_params)
+            a_rep = self._sample_actions(s_next, self.target_actor_network_params, self.n_samples)
             with self.target_qvalue_network_params.to_module(self.qvalue_network):
-                q = self.qvalue_network(s_rep, a_rep)
+                q = self.qvalue_network(s_next, a_rep, self.n_samples)
             q = self.lmbda * q.min(-1).values + (1 - self.lmbda) * q.max(-1).values  # soft clipped double Q
             v_next = q.view(-1, self.n_samples).max(-1).values.unsqueeze(-1)  # best of the n in-support actions
             target = self.value_estimator.value_estimate(td, next_value=v_next)
@@ -230,12 +176,22 @@ class BCQLoss(LossModule):
     def act(self, state: Tensor) -> Tensor:
         """BCQ's action for a state (d_s,) or a batch (B, d_s): the argmax of Q1 over n perturbed samples of G."""
         s = state.reshape(-1, state.shape[-1])
-        s_rep = s.repeat_interleave(self.n_samples, 0)
-        a = self._sample_actions(s_rep, self.actor_network_params)
-        with self.qvalue_network_params.to_module(self.qvalue_network):
-            best = self.qvalue_network.q1(s_rep, a).view(-1, self.n_samples).argmax(-1)
-        a = a.view(len(s), self.n_samples, -1)[torch.arange(len(s)), best]
+        with (
+            self.vae_network_params.to_module(self.vae_network),
+            self.actor_network_params.to_module(self.actor_network),
+            self.qvalue_network_params.to_module(self.qvalue_network),
+        ):
+            a = select_action(self.vae_network, self.actor_network, self.qvalue_network, s, self.n_samples)
         return a.reshape(*state.shape[:-1], a.shape[-1])
+
+    def policy(self) -> BCQPolicy:
+        """The acting network with the online parameters (copies), for checkpoints and the evaluator."""
+        nets = []
+        for name in ("vae_network", "actor_network", "qvalue_network"):
+            module = copy.deepcopy(getattr(self, name))
+            getattr(self, f"{name}_params").detach().clone().to_module(module)
+            nets.append(module)
+        return BCQPolicy(*nets, n_samples=self.n_samples)
 
 
 @dataclass
@@ -259,6 +215,7 @@ class BCQ:
 def make_bcq(
     state_dim: int,
     *,
+    image_channels=None,
     action_dim: int = ACTION_DIM,
     hidden=HIDDEN,
     latent_dim: int = 4,
@@ -270,11 +227,17 @@ def make_bcq(
     tau: float = 0.005,
     lr: float = 1e-4,
 ) -> BCQ:
-    """BCQ with the paper's settings (appendix "GVF-BCQ Training") and BCQ's own where the paper is silent."""
+    """BCQ with the paper's settings (appendix "GVF-BCQ Training") and BCQ's own where the paper is silent;
+    with `image_channels`, E2E-BCQ on flat observations (`common.bcq_networks.flat_observation`)."""
     loss = BCQLoss(
-        VAE(state_dim, action_dim, latent_dim, hidden),
-        Perturbation(state_dim, action_dim, Phi, hidden),
-        TwinQ(state_dim, action_dim, hidden),
+        *make_bcq_networks(
+            state_dim,
+            image_channels=image_channels,
+            action_dim=action_dim,
+            hidden=hidden,
+            latent_dim=latent_dim,
+            Phi=Phi,
+        ),
         lmbda=lmbda,
         n_samples=n_samples,
         kl_weight=kl_weight,

@@ -232,6 +232,26 @@ class LearningCore:
     # --- one update ------------------------------------------------------------------------
     def update(self) -> dict[str, float]:
         """One combined update; metrics every `metrics_every` updates, else an empty dict."""
+        self._before_update()
+        uniform = self._uniform()
+        losses: dict[str, Tensor] = {}
+        if self.predictive:
+            losses.update(self._representation_losses(uniform))
+            ddpg_batch = self._phi_batch(uniform)
+        else:
+            ddpg_batch = self._observation_batch(uniform)
+        loss_ddpg, out = self.ddpg.loss(ddpg_batch)
+        return self._apply(loss_ddpg + sum(losses.values()), losses, out, ddpg_batch)
+
+    def update_representation(self) -> dict[str, float]:
+        """Algorithm 2's update (offline): lines 11-17 alone, the GVFs and g without DDPG."""
+        if not self.predictive:
+            raise ValueError(f"agent {self.agent.name!r} learns no predictive representation")
+        self._before_update()
+        losses = self._representation_losses(self._uniform())
+        return self._apply(sum(losses.values()), losses)
+
+    def _before_update(self) -> None:
         if not self.ready:
             raise RuntimeError(f"warm-up: {len(self.replay)} of {self.warmup} transitions")
         if self.needs_warm_start:
@@ -240,14 +260,15 @@ class LearningCore:
         every = self.agent.rho_refresh_every
         if self.predictive and every and self.updates and self.updates % every == 0:
             self.refresh_all_rho()
-        uniform = self._uniform()
-        losses: dict[str, Tensor] = {}
-        if self.predictive:
-            ddpg_batch = self._predictive_step(uniform, losses)
-        else:
-            ddpg_batch = self._observation_batch(uniform)
-        loss_ddpg, out = self.ddpg.loss(ddpg_batch)
-        total = loss_ddpg + sum(losses.values())
+
+    def _apply(
+        self,
+        total: Tensor,
+        losses: dict[str, Tensor],
+        out: TensorDictBase | None = None,
+        ddpg_batch: TensorDictBase | None = None,
+    ) -> dict[str, float]:
+        """Backward, the finite check, the optimisers' steps (DDPG's only with its batch), metrics."""
         self._zero_grad()
         total.backward()
         if not self._finite(total):
@@ -256,9 +277,9 @@ class LearningCore:
             self._zero_grad()
             return {}
         report = (self.updates + 1) % self.agent.metrics_every == 0
-        if report:  # before the step: the gradient and actions that made it
+        if report and ddpg_batch is not None:  # before the step: the gradient and actions that made it
             losses.update(self._diagnostics(ddpg_batch))
-        self._step()
+        self._step(ddpg=ddpg_batch is not None)
         self.updates += 1
         if not report:
             return {}
@@ -290,39 +311,45 @@ class LearningCore:
             "diag/saturated_speed": saturated[1],
         }
 
-    def _predictive_step(self, uniform: TensorDictBase, losses: dict[str, Tensor]) -> TensorDict:
-        gvf, n = self.nets.gvf, self.batch_size
-        stored = self.replay.sample_by_rho(n).to(self.device)
+    def _representation_losses(self, uniform: TensorDictBase) -> dict[str, Tensor]:
+        """Lines 11-17: the GVFs' TD loss on A ~ rho, the discriminator's BCE on U."""
+        stored = self.replay.sample_by_rho(self.batch_size).to(self.device)
         batch = expand(stored)
         if self.agent.refresh_rho:  # the stored item's rho, so before mirroring
             self.replay.update_rho(stored["index"], self.rho(batch)[0])
         batch = self._mirrored(batch)
-        rho_bar = self.replay.rho_bar
-        # v(s') of A, phi(s) and phi(s') of U: three calls, as one 3n batch is slower on CPU
         with torch.no_grad():
-            v = [gvf(*_obs(td)) for td in (batch["next"], uniform, uniform["next"])]
+            v_next = self.nets.gvf(*_obs(batch["next"]))
         target = td_target(
             cumulants(batch["next"], self.agent.cumulants),
             batch["next", "terminated"],
-            v[0],
+            v_next,
             self.gammas,
             self.agent.gvf_terminal,
         )
-        losses["td"] = gvf_loss(gvf(*_obs(batch)), target, rho_bar)
-        losses["behaviour"] = behaviour_loss(self.nets.behaviour, _obs(uniform), uniform["action"], self.generator)
-        nxt = uniform["next"]
+        return {
+            "td": gvf_loss(self.nets.gvf(*_obs(batch)), target, self.replay.rho_bar),
+            "behaviour": behaviour_loss(self.nets.behaviour, _obs(uniform), uniform["action"], self.generator),
+        }
+
+    @torch.no_grad()
+    def _phi_batch(self, uniform: TensorDictBase) -> TensorDict:
+        """DDPG's batch on U with phi(s) and phi(s') of the current GVFs, detached (section 3)."""
+        gvf, nxt = self.nets.gvf, uniform["next"]
+        # separate calls for s and s': one 2n batch is slower on CPU
+        v, v_next = gvf(*_obs(uniform)), gvf(*_obs(nxt))
         return TensorDict(
             {
-                "phi": phi(v[1], uniform["speed"], uniform["last_action"]),
+                "phi": phi(v, uniform["speed"], uniform["last_action"]),
                 "action": uniform["action"],
                 "next": {
-                    "phi": phi(v[2], nxt["speed"], nxt["last_action"]),
+                    "phi": phi(v_next, nxt["speed"], nxt["last_action"]),
                     "reward": nxt["reward"] * self.scale.reward_scale,
                     "done": nxt["done"],
                     "terminated": nxt["terminated"],
                 },
             },
-            batch_size=[n],
+            batch_size=[uniform.shape[0]],
         )
 
     def _mirrored(self, batch: TensorDictBase) -> TensorDictBase:
@@ -347,20 +374,22 @@ class LearningCore:
         for optimizer in self._optimizers():
             optimizer.zero_grad(set_to_none=True)
 
-    def _step(self) -> None:
+    def _step(self, ddpg: bool = True) -> None:
         if self.predictive:
             self.gvf_optimizer.step()
             self.behaviour_optimizer.step()
-        self.ddpg.step()  # critic, actor (every td3_actor_delay-th with td3), then the targets
+        if ddpg:
+            self.ddpg.step()  # critic, actor (every td3_actor_delay-th with td3), then the targets
 
-    def _metrics(self, losses: dict[str, Tensor], out: TensorDictBase) -> dict[str, float]:
+    def _metrics(self, losses: dict[str, Tensor], out: TensorDictBase | None) -> dict[str, float]:
         metrics = {name if "/" in name else f"losses/{name}": float(value.detach()) for name, value in losses.items()}
-        metrics["losses/actor"] = float(out["loss_actor"].detach())
-        metrics["losses/critic"] = float(out["loss_value"].detach())
-        metrics["train/q_mean"] = float(out["pred_value"].detach().mean())
-        metrics["train/q_target_mean"] = float(out["target_value"].detach().mean())
-        q = out["pred_value"].detach()
-        metrics["train/q_min"], metrics["train/q_max"] = float(q.min()), float(q.max())
+        if out is not None:  # DDPG's part of the update
+            q = out["pred_value"].detach()
+            metrics["losses/actor"] = float(out["loss_actor"].detach())
+            metrics["losses/critic"] = float(out["loss_value"].detach())
+            metrics["train/q_mean"] = float(q.mean())
+            metrics["train/q_target_mean"] = float(out["target_value"].detach().mean())
+            metrics["train/q_min"], metrics["train/q_max"] = float(q.min()), float(q.max())
         metrics["train/updates"] = float(self.updates)
         metrics["train/replay_size"] = float(len(self.replay))
         if self.crashes is not None:

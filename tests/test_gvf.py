@@ -114,6 +114,8 @@ def behaviour_data(n: int, g: torch.Generator) -> TensorDict:
             "beta": beta_.float().reshape(-1, 1),
             "terminated": term_.reshape(-1, 1),
             "rho": rho,
+            "action": action,
+            "log_mu": log_mu,
         },
         batch_size=[n],
     )

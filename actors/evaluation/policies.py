@@ -1,5 +1,5 @@
 """Policies the evaluator can drive: the kinematic controller, or the acting network of a
-learner checkpoint (which stores the policy weights with the agent and scale that built it)."""
+learner or gvf-offline checkpoint (which stores the policy weights with what built them)."""
 
 from __future__ import annotations
 
@@ -13,6 +13,7 @@ from actors.controllers.kinematic import KinematicController
 from common import checkpoint
 from common.config.agent import AgentConfig, ScaleConfig
 from common.networks import make_policy
+from common.offline_policy import make_offline_policy
 
 
 def kinematic_policy():
@@ -47,6 +48,12 @@ def checkpoint_policy(path: str | Path):
     if "policy" not in state:
         raise ValueError(f"{path} holds no policy weights (written by an older learner?)")
     agent, scale = _known(AgentConfig, state["agent"]), _known(ScaleConfig, state["scale"])
+    if "offline" in state:  # gvf-offline: GVF-BCQ or E2E-BCQ
+        offline = state["offline"]
+        policy = make_offline_policy(offline["method"], agent, scale, offline["build"]).eval()
+        policy.load_state_dict(state["policy"])
+        name = {"gvf_bcq": "GVF-BCQ", "e2e_bcq": "E2E-BCQ"}[offline["method"]]
+        return network_policy(policy, False), {"path": str(path), "agent": name, "updates": state["core"]["updates"]}
     policy = make_policy(agent, scale).eval()
     policy.load_state_dict(state["policy"])
     return network_policy(policy, agent.representation == "lowdim"), {

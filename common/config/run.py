@@ -121,6 +121,51 @@ class EvalConfig:
 
 
 @dataclass
+class CollectConfig:
+    """`gvf-collect`: logged data from the random-walk controller for offline learning (common.dataset)."""
+
+    out: str = "datasets/lanedrive"
+    """Dataset folder (created, or appended to with a new seed)."""
+    transitions: int = 100_000
+    """Transitions to collect in all."""
+    workers: int = 2
+    """Collector processes."""
+    cars: int = 4
+    """LaneDrive cars stepped together in each process."""
+    shard_size: int = 5_000
+    """Transitions per shard file set (the unit that is written atomically)."""
+    split: str = "train"
+    """Roads driven: 'train' (the paper's), 'test' or 'all'."""
+
+
+@dataclass
+class OfflineConfig:
+    """`gvf-offline`: Algorithm 2 then BCQ (GVF-BCQ), or BCQ on images (E2E-BCQ), from a dataset."""
+
+    dataset: str = "datasets/lanedrive"
+    """Dataset folder written by gvf-collect."""
+    method: str = "gvf_bcq"
+    """'gvf_bcq' (GVFs and g by Algorithm 2, then BCQ on phi) or 'e2e_bcq' (BCQ on images, as many updates)."""
+    gvf_updates: int = 20_000
+    """Algorithm 2 updates (the paper: 5M, the first half of its updates)."""
+    bcq_updates: int = 20_000
+    """BCQ updates after them (the paper: 5M); E2E-BCQ makes gvf_updates + bcq_updates."""
+    loading: str = "recorded"
+    """'recorded': shards enter a growing FIFO replay in recorded order (shard order shuffled), as the
+    paper loaded its rosbags; 'full': the whole dataset is in the replay before the first update."""
+    replay: int = 0
+    """Replay capacity for Algorithm 2 (0: the whole dataset; the paper: 0.5M of its 1.5M)."""
+    start: int = 10_000
+    """Transitions in the replay before the first update ('recorded'; the paper: 0.1M)."""
+    load_fraction: float = 0.5
+    """'recorded': the last transition enters the replay at this fraction of gvf_updates."""
+    lr: float = 1e-4
+    """BCQ's learning rate (the paper: 1e-4; the GVFs' and g's are the scale's)."""
+    checkpoint_dir: str = "checkpoints/offline"
+    """Where gvf-offline writes its checkpoints, under the run folder if relative (gvf-eval reads them)."""
+
+
+@dataclass
 class RunConfig:
     """A whole run: `gvf-train`, `gvf-learner`, `gvf-actor` and `gvf-router` all read this."""
 
@@ -140,6 +185,8 @@ class RunConfig:
     actors: ActorsConfig = field(default_factory=ActorsConfig)
     learner: LearnerConfig = field(default_factory=LearnerConfig)
     eval: EvalConfig = field(default_factory=EvalConfig)
+    collect: CollectConfig = field(default_factory=CollectConfig)
+    offline: OfflineConfig = field(default_factory=OfflineConfig)
     checkpoint: Optional[str] = None
     """gvf-eval: a learner checkpoint file, or a folder to take the newest from."""
     policy: str = "checkpoint"
@@ -177,6 +224,38 @@ def to_objects(cfg: Any) -> tuple[RunConfig, AgentConfig, ScaleConfig]:
     check_agent(run.agent)
     if run.learner.rho_at not in RHO_AT:
         raise ValueError(f"learner.rho_at must be one of {RHO_AT}, got {run.learner.rho_at!r}")
+    check_offline(run)
     if run.learner.rho_at == "actor" and run.agent.representation != "predictive":
         raise ValueError(f"learner.rho_at=actor needs a GVF variant, agent {run.agent.name!r} has no discriminator")
     return run, run.agent, run.scale
+
+
+SPLITS = ("train", "test", "all")
+OFFLINE_METHODS = ("gvf_bcq", "e2e_bcq")
+LOADINGS = ("recorded", "full")
+
+
+def check_offline(run: RunConfig) -> None:
+    """Refuse a bad collect.* or offline.* value, naming the field."""
+    c, o = run.collect, run.offline
+    for name, value in (
+        ("transitions", c.transitions),
+        ("workers", c.workers),
+        ("cars", c.cars),
+        ("shard_size", c.shard_size),
+    ):
+        if value < 1:
+            raise ValueError(f"collect.{name} must be >= 1, got {value}")
+    if c.split not in SPLITS:
+        raise ValueError(f"collect.split must be one of {SPLITS}, got {c.split!r}")
+    if o.method not in OFFLINE_METHODS:
+        raise ValueError(f"offline.method must be one of {OFFLINE_METHODS}, got {o.method!r}")
+    if o.loading not in LOADINGS:
+        raise ValueError(f"offline.loading must be one of {LOADINGS}, got {o.loading!r}")
+    for name in ("gvf_updates", "bcq_updates", "replay", "start"):
+        if getattr(o, name) < 0:
+            raise ValueError(f"offline.{name} must be >= 0, got {getattr(o, name)}")
+    if not o.lr > 0.0:
+        raise ValueError(f"offline.lr must be > 0, got {o.lr}")
+    if not 0.0 < o.load_fraction <= 1.0:
+        raise ValueError(f"offline.load_fraction must be in (0, 1], got {o.load_fraction}")

@@ -1,0 +1,126 @@
+"""Offline learning (learner.offline, Algorithm 2): the GVFs learned from a fixed dataset reach the
+true out-of-policy values of a chain; recorded loading; a gvf-offline policy that gvf-eval drives."""
+
+from __future__ import annotations
+
+import dataclasses
+
+import pytest
+import torch
+from tensordict import TensorDict
+
+from common.config.agent import AgentConfig
+from common.dataset import FIELDS, Dataset, DatasetWriter
+from learner.offline import RepresentationTrainer, recorded_order
+from tests.test_gvf import GAMMAS, N_POS, WIDTH, behaviour_data, train, true_values
+from tests.test_update import TINY
+
+CHAIN_SCALE = dataclasses.replace(TINY, gvf_hidden=[64, 64], batch_size=64, mirror=0.0, lr_gvf=3e-3, lr_behaviour=3e-3)
+
+
+def chain_dataset(root, n: int, shards: int = 4) -> TensorDict:
+    """The chain of tests/test_gvf.py as LaneDrive-shaped transitions: the position is the speed
+    input (pos / 6), the move's direction the last steering action, the frames are blank; the
+    second action dimension is drawn like tau's, so mu and tau differ only in steering."""
+    gen = torch.Generator().manual_seed(0)
+    chain = behaviour_data(n, gen)
+    pos, last = chain["state"] // 2, (chain["state"] % 2).float() - 0.5
+    new_pos = chain["next_state"] // 2
+    second = (torch.randn(n, 1, generator=gen) * WIDTH).clamp(-1, 1)
+    zeros = lambda *shape, dtype=torch.float32: torch.zeros(n, *shape, dtype=dtype)  # noqa: E731
+    td = TensorDict(
+        {
+            "image": zeros(2, 64, 128, dtype=torch.uint8),
+            "speed": (pos.float() / (N_POS - 1)).reshape(-1, 1),
+            "last_action": torch.cat([last.reshape(-1, 1), zeros(1)], -1),
+            "alpha": zeros(1),
+            "beta": zeros(1),
+            "action": torch.cat([chain["action"], second], -1),
+            "next_frame": zeros(1, 64, 128, dtype=torch.uint8),
+            "next_speed": (new_pos.float() / (N_POS - 1)).reshape(-1, 1),
+            "next_alpha": chain["alpha"],
+            "next_beta": chain["beta"],
+            "reward": zeros(1),
+            "terminated": chain["terminated"].bool(),
+            "truncated": zeros(1, dtype=torch.bool),
+            "track": zeros(1, dtype=torch.int16),
+            "episode": zeros(1, dtype=torch.int64),
+            "step": torch.arange(n, dtype=torch.int32).reshape(-1, 1),
+            "log_mu": torch.full((n, 1), float("nan")),
+        },
+        batch_size=[n],
+    )
+    writer = DatasetWriter(root, "chain")
+    for part in td.split(n // shards):
+        writer.append(part, ["chain"])
+    assert set(td.keys()) == set(FIELDS)
+    return chain
+
+
+@pytest.fixture(scope="module")
+def chain(tmp_path_factory):
+    root = tmp_path_factory.mktemp("chain")
+    return chain_dataset(root, 8_000), Dataset.open(root)
+
+
+def test_offline_algorithm_2_learns_the_chains_true_out_of_policy_values(chain):
+    """mu keeps or flips the direction half the time; tau keeps it. From the fixed data and an
+    estimated mu, the GVFs must reach tau's values, not the behaviour's (plain TD's)."""
+    torch.set_num_threads(1)
+    data, dataset = chain
+    agent = AgentConfig(name="gvf_ddpg", gammas=GAMMAS, tau_width=WIDTH, rho_max=100.0, metrics_every=10_000)
+    trainer = RepresentationTrainer(agent, CHAIN_SCALE, dataset, updates=2500, loading="full", seed=0)
+    for _ in range(2500):
+        trainer.step()
+    assert trainer.loaded == len(dataset) == len(trainer.core.replay)
+    states = torch.arange(N_POS * 2)
+    pos, last = states // 2, (states % 2).float() - 0.5
+    with torch.no_grad():
+        v = trainer.core.nets.gvf(
+            torch.zeros(len(states), 2, 64, 128, dtype=torch.uint8),
+            (pos.float() / (N_POS - 1)).reshape(-1, 1),
+            torch.stack([last, torch.zeros(len(states))], -1),
+        ).reshape(N_POS, 2, -1)
+    visited = torch.zeros(N_POS * 2, dtype=torch.bool)
+    visited[data["state"]] = True
+    visited = visited.reshape(N_POS, 2)
+    truth, plain = true_values(), train(data.clone(), resample=False)
+    error = (v - truth)[visited].abs()
+    behaviour_gap = (plain - truth)[visited].abs()
+    print(f"offline max |error| {error.max():.3f} (mean {error.mean():.3f}); plain TD's {behaviour_gap.max():.3f}")
+    assert error.max() < 0.15, error.max()
+    assert behaviour_gap.max() > 0.3  # so reaching tau's values is not the behaviour's values by chance
+    # g's rho tells the transitions tau would take (keep the direction: rho ~ 2) from the rest (~ 0)
+    replay = trainer.core.replay
+    stored = replay.buffer.storage.get(torch.arange(len(replay)))
+    keep = (stored["action"][:, 0] * stored["last_action"][:, 0] > 0).reshape(-1)
+    rho = replay.rho[: len(replay)]
+    assert rho[keep].mean() > 20 * rho[~keep].mean(), (rho[keep].mean(), rho[~keep].mean())
+
+
+def test_recorded_loading_grows_the_replay_in_shard_order_at_a_steady_rate(chain):
+    _, dataset = chain
+    agent = AgentConfig(name="gvf_ddpg", gammas=GAMMAS, tau_width=WIDTH, behaviour_warmup_updates=5)
+    trainer = RepresentationTrainer(
+        agent, CHAIN_SCALE, dataset, updates=40, loading="recorded", replay=6_000, start=1_000, load_fraction=0.5
+    )
+    sizes = []
+    for _ in range(40):
+        trainer.step()
+        sizes.append(trainer.loaded)
+    per_update = -(-(8_000 - 1_000) // 20)
+    assert sizes[0] == 1_000 + per_update  # warm-up, then the first update's share
+    assert sizes[18] - sizes[17] == per_update and sizes[19] == 8_000  # all in at half the updates
+    assert len(trainer.core.replay) == 6_000  # a FIFO: the oldest 2,000 left
+
+
+def test_recorded_order_is_every_shard_whole_in_a_seeded_shuffled_order(chain):
+    _, dataset = chain
+    out = torch.cat([td["action"] for td in recorded_order(dataset, seed=3)])
+    shards = [torch.as_tensor(dataset.shard(i)[0]["action"]) for i in range(len(dataset.shards))]
+    pieces = out.split(len(shards[0]))
+    order = [next(i for i, s in enumerate(shards) if torch.equal(s, piece)) for piece in pieces]
+    assert sorted(order) == list(range(len(shards)))  # each shard once, rows in recorded order
+    again = torch.cat([td["action"] for td in recorded_order(dataset, seed=3)])
+    other = torch.cat([td["action"] for td in recorded_order(dataset, seed=4)])
+    assert torch.equal(out, again) and not torch.equal(out, other)
