@@ -5,7 +5,8 @@ Observation: ``image`` uint8 (2, 64, 128) = current and previous grayscale front
 ``speed`` float32 (1,) = speed / v_max, ``last_action`` float32 (2,).
 Action: box [-1, 1]^2 = (steering, +1 turns left; target speed, -1..1 -> 0.5..1.0 v_max).
 info: alpha, beta, speed (m/s), track, progress (laps), lap_completed, curvature,
-curvature_ahead (max |1/R| in the next 40 m), lane_half_width, steps.
+curvature_ahead (max |1/R| in the next 40 m), lane_half_width, station (arclength of the nearest
+centreline sample, m), steer (wheel angle, rad), steps.
 """
 
 from __future__ import annotations

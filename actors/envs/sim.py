@@ -202,5 +202,7 @@ class LaneDriveSim:
             "curvature": float(tr.curvature[self.idx[i]]),
             "curvature_ahead": float(self.ahead[i][self.idx[i]]),
             "lane_half_width": self.half,
+            "station": float(self.idx[i] * tr.spacing),
+            "steer": float(self.delta[i]),
             "steps": int(self.steps[i]),
         }
