@@ -153,3 +153,34 @@ def test_set_keys_reads_the_state_from_another_key():
     data.rename_key_(("next", "observation"), ("next", "phi"))
     assert "phi" in bcq.loss.in_keys and ("next", "phi") in bcq.loss.in_keys
     assert torch.isfinite(bcq.loss(data)["loss_qvalue"])
+
+
+def test_the_policy_copy_acts_as_the_loss_does():
+    torch.manual_seed(0)
+    bcq = make_bcq(3, hidden=(16,))
+    policy = bcq.loss.policy()
+    s = torch.randn(6, 3)
+    torch.manual_seed(1)
+    a = bcq.loss.act(s)
+    torch.manual_seed(1)
+    assert torch.equal(policy(s), a)
+    bcq.update(dataset(32, torch.Generator().manual_seed(0)))  # a copy: the learner moves on alone
+    torch.manual_seed(1)
+    assert torch.equal(policy(s), a)
+
+
+def test_e2e_networks_encode_a_state_once_for_its_n_samples():
+    """Repeating the features of each state n times equals encoding n copies of the state."""
+    from common.bcq_networks import E2E_STATE_DIM, flat_observation
+
+    torch.manual_seed(0)
+    bcq = make_bcq(0, image_channels=[4, 4, 4, 4, 4], hidden=(16,))
+    image = torch.randint(0, 256, (3, 2, 64, 128), dtype=torch.uint8)
+    s = flat_observation(image, torch.rand(3, 1), torch.rand(3, 2) * 2 - 1)
+    assert s.shape == (3, E2E_STATE_DIM)
+    a = torch.rand(3 * 4, 2) * 2 - 1
+    q = bcq.loss.qvalue_network
+    assert torch.allclose(q(s, a, 4), q(s.repeat_interleave(4, 0), a), atol=1e-5)
+    xi = bcq.loss.actor_network
+    assert torch.allclose(xi(s, a, 4), xi(s.repeat_interleave(4, 0), a), atol=1e-5)
+    assert bcq.loss.act(s).shape == (3, 2)

@@ -69,8 +69,8 @@ def test_offline_algorithm_2_learns_the_chains_true_out_of_policy_values(chain):
     torch.set_num_threads(1)
     data, dataset = chain
     agent = AgentConfig(name="gvf_ddpg", gammas=GAMMAS, tau_width=WIDTH, rho_max=100.0, metrics_every=10_000)
-    trainer = RepresentationTrainer(agent, CHAIN_SCALE, dataset, updates=2500, loading="full", seed=0)
-    for _ in range(2500):
+    trainer = RepresentationTrainer(agent, CHAIN_SCALE, dataset, updates=1500, loading="full", seed=0)
+    for _ in range(1500):
         trainer.step()
     assert trainer.loaded == len(dataset) == len(trainer.core.replay)
     states = torch.arange(N_POS * 2)
