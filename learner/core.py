@@ -1,7 +1,7 @@
 """One combined learner update of GVF-DDPG and its baselines (Algorithm 1, lines 8-17, then
 DDPG on phi), free of any transport or process code.
 
-`LearningCore.add` is lines 8-10: it computes rho = tau / mu_hat with the current
+`LearningCore.add` is lines 8-10: it computes rho = tau / mu_hat (learner.insert_rho) with the current
 discriminator for the incoming transitions and stores them in the shared replay.
 `LearningCore.update` is lines 11-17 plus DDPG:
 
@@ -39,16 +39,15 @@ from torch import Tensor
 
 from common.config.agent import AgentConfig, ScaleConfig, step_sizes
 from common.networks import make_networks, phi
-from learner.behaviour import behaviour_loss, log_mu_hat
+from learner.behaviour import behaviour_loss
 from learner.ddpg import DDPG
-from learner.gvf import cumulants, expand_gammas, gvf_loss, importance_ratio, log_tau, td_target
+from learner.gvf import cumulants, expand_gammas, gvf_loss, td_target
+from learner.insert_rho import RHO_SLICE, InsertRho
 from learner.metrics import prediction_error
 from learner.mirror import mirror
 from learner.replay import CrashMemory, ImportanceResamplingReplay, compact, expand, sample_uniform_with
 
 OBS_KEYS = ("image", "speed", "last_action")
-RHO_SLICE = 256
-RHO_CHECK_EVERY = 20  # actor-rho batches between checks against the learner's own g
 
 
 def _obs(td: TensorDictBase) -> tuple[Tensor, Tensor, Tensor]:
@@ -110,22 +109,14 @@ class LearningCore:
         self.updates = 0
         self.warm = False  # g trained on the warm-up data and every rho recomputed
         self.held_out: TensorDictBase | None = None
-        self._rho_seen = 0
-        self._rho_clipped = 0
-        self._actor_rho_batches = 0
-        self._actor_rho_error: list[float] = []
+        self.insert_rho = InsertRho(agent, self.nets.behaviour) if self.predictive else None
         self.skipped_nonfinite = 0
         """Updates skipped because their loss or a gradient was not finite."""
 
     # --- Algorithm 1, lines 8-10 -------------------------------------------------------
-    @torch.no_grad()
     def rho(self, td: TensorDictBase) -> tuple[Tensor, Tensor]:
-        """rho = tau(a|s) / mu_hat(a|s), clipped; and which ones were clipped."""
-        return self._rho_from_log_mu(td["action"], td["last_action"], self._log_mu(td))
-
-    def _log_mu(self, td: TensorDictBase) -> Tensor:
-        """log mu_hat(a|s) under the current discriminator."""
-        return log_mu_hat(self.nets.behaviour(*_obs(td), td["action"]), td["action"])
+        """rho = tau(a|s) / mu_hat(a|s) under the current g, clipped; and which ones were clipped."""
+        return self.insert_rho.by_g(td)
 
     @torch.no_grad()
     def refresh_all_rho(self, slice_size: int = 4 * RHO_SLICE) -> None:
@@ -165,48 +156,10 @@ class LearningCore:
         only tau is computed here; the others run the discriminator."""
         transitions = transitions.to(self.device)
         if self.predictive:
-            rho, clipped = self._rho_at_insert(transitions)
-            self._rho_seen += clipped.numel()
-            self._rho_clipped += int(clipped.sum())
+            rho = self.insert_rho(transitions)
         else:
             rho = torch.ones(transitions.shape[0], 1, device=self.device)
         self.replay.extend(compact(transitions, rho).to("cpu"))
-
-    @torch.no_grad()
-    def _rho_at_insert(self, transitions: TensorDictBase) -> tuple[Tensor, Tensor]:
-        log_mu = transitions.get("log_mu", None)
-        if log_mu is None:
-            return self._rho_by_g(transitions)
-        given = torch.isfinite(log_mu).reshape(-1)
-        if bool(given.all()):  # the common case: no copy of the batch, tau alone
-            self._check_actor_rho(transitions)
-            return self._rho_from_log_mu(transitions["action"], transitions["last_action"], log_mu)
-        rho = torch.empty(transitions.shape[0], 1, device=self.device)
-        clipped = torch.empty(transitions.shape[0], 1, dtype=torch.bool, device=self.device)
-        if given.any():
-            part = transitions[given]
-            self._check_actor_rho(part)
-            rho[given], clipped[given] = self._rho_from_log_mu(part["action"], part["last_action"], part["log_mu"])
-        rho[~given], clipped[~given] = self._rho_by_g(transitions[~given])
-        return rho, clipped
-
-    def _rho_from_log_mu(self, action: Tensor, last_action: Tensor, log_mu: Tensor) -> tuple[Tensor, Tensor]:
-        return importance_ratio(log_tau(action, last_action, self.agent.tau_width), log_mu, self.agent.rho_max)
-
-    def _rho_by_g(self, transitions: TensorDictBase) -> tuple[Tensor, Tensor]:
-        # the discriminator's forward costs ~2x less per item in slices of 256 than at 2048 on CPU
-        parts = [self.rho(p) for p in transitions.split(RHO_SLICE)]
-        return torch.cat([r for r, _ in parts]), torch.cat([c for _, c in parts])
-
-    @torch.no_grad()
-    def _check_actor_rho(self, part: TensorDictBase) -> None:
-        """Every `RHO_CHECK_EVERY`-th actor-rho batch: mean abs(log rho_actor - log rho_here) on up
-        to 64 items, before the clip (train/rho_actor_log_error): what the actors' older g costs."""
-        self._actor_rho_batches += 1
-        if self._actor_rho_batches % RHO_CHECK_EVERY != 1:
-            return
-        part = part[:64]
-        self._actor_rho_error.append(float((part["log_mu"] - self._log_mu(part)).abs().mean()))
 
     def add_crashes(self, transitions: TensorDictBase) -> None:
         """Keep copies of the steps before terminations in the crash memory (`scale.crash_memory`;
@@ -397,11 +350,7 @@ class LearningCore:
         metrics["train/skipped_nonfinite"] = float(self.skipped_nonfinite)
         if self.predictive:
             metrics["train/rho_bar"] = self.replay.rho_bar
-            metrics["train/rho_clip_rate"] = self._rho_clipped / max(self._rho_seen, 1)
-            self._rho_seen = self._rho_clipped = 0
-            if self._actor_rho_error:
-                metrics["train/rho_actor_log_error"] = sum(self._actor_rho_error) / len(self._actor_rho_error)
-                self._actor_rho_error = []
+            metrics.update(self.insert_rho.metrics())
             if self.held_out is not None:
                 metrics.update(
                     prediction_error(

@@ -91,13 +91,13 @@ def test_the_actor_rho_error_against_the_current_g_is_reported(core):
     acting = acting_with(broadcast(core))
     chunk = chunks_to_transitions([acting.with_log_mu(random_chunk(0))], next_image=False)
     core.add(chunk)
-    assert core._actor_rho_error == [pytest.approx(0.0, abs=1e-4)]  # same g: no error
+    assert core.insert_rho.actor_error == [pytest.approx(0.0, abs=1e-4)]  # same g: no error
     with torch.no_grad():
         for p in core.nets.behaviour.parameters():
             p.add_(0.05)  # g moves on after the broadcast
     for _ in range(20):
         core.add(chunk)
-    assert core._actor_rho_error[-1] > 0.05
+    assert core.insert_rho.actor_error[-1] > 0.05
 
 
 def test_without_a_broadcast_discriminator_chunks_go_out_unchanged(core):

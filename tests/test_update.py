@@ -110,7 +110,7 @@ def test_rho_at_insert_is_tau_over_mu_hat_and_clips_are_counted(data):
     )
     expected = log_ratio.exp().clamp(max=20.0).reshape(-1).double()
     assert torch.allclose(core.replay.rho[:64], expected, rtol=1e-5)
-    assert core._rho_clipped == int((log_ratio.exp() > 20.0).sum()) > 0
+    assert core.insert_rho.clipped == int((log_ratio.exp() > 20.0).sum()) > 0
     assert abs(core.replay.rho_bar - float(expected.mean())) < 1e-9 * float(expected.mean())
 
 
