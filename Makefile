@@ -5,7 +5,7 @@ VENV := .venv
 PY := $(VENV)/bin/python
 STAMP := $(VENV)/.installed
 
-.PHONY: train test demo bench slurm clean
+.PHONY: train test demo bench slurm torcs clean
 
 $(STAMP): pyproject.toml
 	test -x $(PY) || $(PYTHON) -m venv $(VENV)
@@ -35,6 +35,11 @@ bench: $(STAMP)
 slurm: $(STAMP)
 	deploy/slurm/local_cluster.sh
 	$(PY) -m pip install -e '.[slurm]'
+
+# TORCS 1.3.7 from Debian's source with our lockstep robot, installed under third_party/torcs (issue 15);
+# apt packages only system-wide, idempotent. Not needed by train or test: the TORCS tests skip without it.
+torcs:
+	deploy/torcs/build.sh
 
 clean:
 	rm -rf $(VENV) *.egg-info
