@@ -103,30 +103,31 @@ configure_tree() {
 	say "configure --prefix=$PREFIX"
 	(cd "$SRC" && ./configure --prefix="$PREFIX" --x-libraries=/usr/lib/ >"$WORK/configure.log" 2>&1) ||
 		{ tail -n 30 "$WORK/configure.log"; exit 1; }
-	rm -f "$STAMPS/built" "$STAMPS/installed"
+	rm -f "$STAMPS/built"
 	echo "$PREFIX" >"$STAMPS/configured"
 }
 
 build_and_install() {
-	local robot_sha
+	local robot_sha robot_make
 	robot_sha=$(sha_of "$ROBOT_SRC"/Makefile "$ROBOT_SRC"/gvfdrive.cpp "$ROBOT_SRC"/gvfdrive.xml)
+	robot_make=(-C "$SRC/src/drivers/gvfdrive" TORCS_BASE="$SRC" MAKE_DEFAULT="$SRC/Make-default.mk")
 	if [ ! -f "$STAMPS/built" ]; then
-		say "building TORCS (serial make, several minutes)"
+		say "building TORCS (serial make, a minute or two)"
 		local t0=$SECONDS
 		(cd "$SRC" && torcs_make)
-		echo "$robot_sha" >"$STAMPS/built"
-		say "built in $((SECONDS - t0)) s"
+		say "built in $((SECONDS - t0)) s; installing into $PREFIX"
+		(cd "$SRC" && torcs_make install)
 	elif [ "$(cat "$STAMPS/built")" != "$robot_sha" ]; then
-		say "robot changed: rebuilding src/drivers/gvfdrive"
-		torcs_make -C "$SRC/src/drivers/gvfdrive" TORCS_BASE="$SRC" MAKE_DEFAULT="$SRC/Make-default.mk"
-		rm -f "$STAMPS/installed"
-		echo "$robot_sha" >"$STAMPS/built"
-	fi
-	if [ "$(cat "$STAMPS/installed" 2>/dev/null)" != "$robot_sha" ] || [ ! -x "$PREFIX/lib/torcs/torcs-bin" ]; then
+		say "robot changed: rebuilding and installing src/drivers/gvfdrive only"
+		torcs_make "${robot_make[@]}"
+		torcs_make "${robot_make[@]}" install
+	elif [ ! -x "$PREFIX/lib/torcs/torcs-bin" ]; then
 		say "installing into $PREFIX"
 		(cd "$SRC" && torcs_make install)
-		echo "$robot_sha" >"$STAMPS/installed"
+	else
+		say "built and installed"
 	fi
+	echo "$robot_sha" >"$STAMPS/built"
 }
 
 # The install's data folder gets torcs-data's roads, cars, categories... as links: `make install`

@@ -71,7 +71,7 @@ class CarState(NamedTuple):
     to_right: float  # distance to the right edge, m
     angle: float  # road direction minus yaw, rad, [-pi, pi)
     dist_from_start: float  # distance along the road from the start line, m
-    dist_raced: float  # distance driven since the race start, m
+    dist_raced: float  # TORCS's distRaced, m (negative until the start line is first crossed)
     track_length: float  # m
     seg_curvature: float  # signed curvature of the current segment, 1/m, + left
     seg_width: float  # road width, m
@@ -81,7 +81,7 @@ class CarState(NamedTuple):
     brake: float  # brake at the robot's last call, [0, 1]
     seg_id: int  # TORCS's segment number
     seg_type: int  # 1 right turn, 2 left turn, 3 straight
-    lap: int  # laps started (0 until the start line is first crossed)
+    lap: int  # start-line crossings so far (TORCS's laps; 0 until the first one)
     damage: int  # TORCS's damage points
     gear: int
     state: int  # TORCS's RM_CAR_STATE_* flags

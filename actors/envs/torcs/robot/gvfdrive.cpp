@@ -61,7 +61,7 @@ struct GvfState {
 	double to_right;            // distance to the right edge, m
 	double angle;               // road direction minus yaw, rad, in [-pi, pi)
 	double dist_from_start;     // distance along the road from the start line, m (distFromStartLine)
-	double dist_raced;          // distance driven since the race start, m
+	double dist_raced;          // TORCS's distRaced, m (negative until the start line is first crossed)
 	double track_length;        // length of the road's middle line, m
 	double seg_curvature;       // signed curvature of the current segment's middle, 1/m (+ left)
 	double seg_width;           // road width at the current segment, m
@@ -71,7 +71,7 @@ struct GvfState {
 	double brake;               // brake command of the last call, [0, 1]
 	int32_t seg_id;             // TORCS's segment number
 	int32_t seg_type;           // 1 right turn, 2 left turn, 3 straight (TR_RGT, TR_LFT, TR_STR)
-	int32_t lap;                // laps started (0 until the car first crosses the start line)
+	int32_t lap;                // start-line crossings so far (TORCS's laps; 0 until the first one)
 	int32_t damage;             // TORCS's damage points
 	int32_t gear;               // current gear (-1 reverse, 0 neutral)
 	int32_t state;              // TORCS's car state flags (RM_CAR_STATE_*)
@@ -96,6 +96,7 @@ static int callsLeft = 0;
 static GvfAction held;
 static double lastAccel = 0.0;
 static double lastBrake = 0.0;
+static double throttleIntegral = 0.0;
 
 // Reads or writes exactly n bytes; false on end of file or error (the peer is gone).
 static bool readAll(int fd, void *buf, size_t n)
@@ -248,12 +249,24 @@ static int chooseGear(const tCarElt *car)
 	return gear;
 }
 
-// Proportional speed control: full throttle 2 m/s below the target, full brake 5 m/s above it.
-static void applyAction(tCarElt *car)
+// Speed control: proportional-integral throttle (the integral holds the throttle that drag needs,
+// so the car settles on the target instead of below it), and brakes only 1 m/s or more above it.
+static void applyAction(tCarElt *car, double dt)
 {
+	const double KP = 0.5, KI = 0.5, BRAKE_MARGIN = 1.0, BRAKE_GAIN = 0.2;
 	double err = held.target_speed - car->_speed_x;
-	double accel = err > 0.0 ? fmin(1.0, err / 2.0) : 0.0;
-	double brake = err < 0.0 ? fmin(1.0, -err / 5.0) : 0.0;
+	// The integral moves only while the throttle it gives is inside (0, 1): no wind-up during a
+	// full-throttle climb to a far target, which would overshoot it.
+	double integral = fmax(0.0, throttleIntegral + err * dt);
+	double unclipped = KP * err + KI * integral;
+	if (unclipped > 0.0 && unclipped < 1.0) {
+		throttleIntegral = integral;
+	}
+	double accel = fmin(1.0, fmax(0.0, KP * err + KI * throttleIntegral));
+	double brake = err < -BRAKE_MARGIN ? fmin(1.0, BRAKE_GAIN * (-err - BRAKE_MARGIN)) : 0.0;
+	if (brake > 0.0) {
+		accel = 0.0;
+	}
 	car->_steerCmd = (tdble)held.steer;
 	car->_accelCmd = (tdble)accel;
 	car->_brakeCmd = (tdble)brake;
@@ -274,6 +287,7 @@ static void newRace(int index, tCarElt *car, tSituation *s)
 	openPipes();
 	stepCount = 0;
 	callsLeft = 0;
+	throttleIntegral = 0.0;
 	memset(&held, 0, sizeof(held));
 }
 
@@ -291,7 +305,7 @@ static void drive(int index, tCarElt *car, tSituation *s)
 		stepCount++;
 		callsLeft = CALLS_PER_STEP;
 	}
-	applyAction(car);
+	applyAction(car, s->deltaTime);
 	callsLeft--;
 }
 
