@@ -74,7 +74,7 @@ def test_fake_killed_peer_is_relaunched_on_the_same_race(fake):
 
 def test_fake_hung_peer_is_killed_and_relaunched(fake, monkeypatch):
     monkeypatch.setenv("GVF_FAKE_TORCS_HANG_AT", "2")
-    fake.step_timeout = 0.5
+    fake.step_timeout = 1.0
     fake.reset(RaceSpec("straight", "road"))
     hung = fake.proc
     assert fake.step(0.0, 5.0).step == 1

@@ -70,6 +70,9 @@ ensure_source() {
 		# The tarballs are not needed once unpacked (apt-get source fetches them again if asked).
 		rm -f "$WORK"/torcs_*.orig.tar.* "$WORK"/torcs_*.debian.tar.* "$WORK"/torcs_*.dsc
 		ls -d "$WORK"/torcs-*/ | head -1 >"$STAMPS/source"
+		# The tree's data/ (737 MB) duplicates torcs-data, which the install links instead; make and
+		# make install never read it (only `make datainstall` does).
+		rm -rf "$(cat "$STAMPS/source")data"
 	fi
 	SRC=$(cat "$STAMPS/source")
 	SRC=${SRC%/}
