@@ -133,6 +133,13 @@ def test_torcs_pose_from_the_race_file(torcs):
 
 
 @needs_torcs
+def test_torcs_reset_moves_to_another_road(torcs):
+    first = torcs.reset(RaceSpec("g-track-1", "road", start=10.0))
+    other = torcs.reset(RaceSpec("a-speedway", "oval", start=20.0))
+    assert other.step == 0 and other.track_length != first.track_length and torcs.launches == 2
+
+
+@needs_torcs
 def test_torcs_killed_process_is_relaunched(torcs):
     torcs.reset(RaceSpec("g-track-1", "road", start=50.0))
     _drive(torcs, 5, 0.0, 10.0)

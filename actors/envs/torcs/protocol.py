@@ -17,7 +17,7 @@ then the fields of ``CarState`` in order. ``ACTION`` (Python -> robot): magic 'G
 (0 drive, 1 quit), steer in [-1, 1] (+ turns left), target speed in m/s (the robot's speed
 controller chooses throttle, brake and gear). The C side is the struct GvfState in gvfdrive.cpp.
 
-Reset relaunches TORCS with a new race file (a TORCS start takes a fraction of a second), which
+Reset relaunches TORCS with a new race file (10-45 ms on this machine, depending on the road), which
 also bounds any leak inside TORCS to one episode. A TORCS that dies, hangs past ``step_timeout`` or
 speaks out of step is killed and relaunched on the same race; ``step()`` then returns the fresh
 race's first state (``step == 0``), which the caller treats as the end of the episode.
