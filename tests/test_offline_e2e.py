@@ -50,7 +50,8 @@ def test_collect_train_offline_and_compare(tmp_path, capsys):
     for method in ("GVF-BCQ", "E2E-BCQ", "MPC", "kinematic"):
         assert f"| {method} | " in text
     assert "| E2E-BCQ | 1 | 0.4 m/s | damaged |" in text and "dune CCW" in text
-    assert (out / "distributions.png").stat().st_size > 10_000
+    assert (out / "distributions.png").stat().st_size > 10_000 and (out / "algorithm2_curves.png").exists()
+    assert [r["phase"] for r in summary["curves"]] == ["gvf", "gvf", "bcq", "bcq"]
 
     capsys.readouterr()
     offline_study.main([*args, "--", *TINY_OFFLINE])  # resumable: every job's summary exists

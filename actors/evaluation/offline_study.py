@@ -86,8 +86,10 @@ def run_job(
     policy, meta = checkpoint_policy(ckpt)
     state = checkpoint.load(ckpt)
     rows = drive_all({NAMES[method]: policy}, tracks=tracks)
+    curves = [json.loads(line) for line in (run_dir / "offline_metrics.jsonl").read_text().splitlines()]
     summary = summarize(
         rows,
+        curves=curves,
         method=method,
         seed=seed,
         overrides=overrides,
@@ -178,6 +180,33 @@ def figure(summaries: list[dict], path: Path) -> Path:
     return path
 
 
+def training_curves(summaries: list[dict], path: Path) -> Path | None:
+    """Algorithm 2's TD loss, behaviour loss and rho_bar against updates per GVF-BCQ run (the
+    paper's figure), a dashed line where the replay became full."""
+    runs = [s for s in summaries if s.get("method") == "gvf_bcq" and s.get("curves")]
+    if not runs:
+        return None
+    panels = [("losses/td", "TD loss"), ("losses/behaviour", "behaviour loss"), ("train/rho_bar", "mean rho in D")]
+    fig, axes = plt.subplots(1, 3, figsize=(11, 2.8))
+    for s in runs:
+        gvf = [r for r in s["curves"] if r["phase"] == "gvf"]
+        x = [r["update"] for r in gvf]
+        for ax, (key, label) in zip(axes, panels):
+            ax.plot(x, [r[key] for r in gvf], label=f"seed {s['seed']}")
+            ax.set_title(label, fontsize=9)
+        full = next((r["update"] for r in gvf if r.get("train/loaded", 0) >= s.get("transitions", 1)), None)
+        for ax in axes if full else ():
+            ax.axvline(full, ls="--", lw=0.8, color="grey")
+    axes[0].set_yscale("log")
+    axes[0].legend(fontsize=7)
+    for ax in axes:
+        ax.set_xlabel("Algorithm 2 updates", fontsize=8)
+    fig.tight_layout()
+    fig.savefig(path, dpi=80)
+    plt.close(fig)
+    return path
+
+
 def build(out: Path) -> list[Path]:
     summaries = load(out)
     if not summaries:
@@ -189,7 +218,8 @@ def build(out: Path) -> list[Path]:
     for speed in target_speeds():
         text += f"### Laps per road, target speed {speed}\n\n" + per_road(summaries, speed) + "\n\n"
     (out / "comparison.md").write_text(text)
-    return [out / "comparison.md", figure(summaries, out / "distributions.png")]
+    curves = training_curves(summaries, out / "algorithm2_curves.png")
+    return [out / "comparison.md", figure(summaries, out / "distributions.png")] + ([curves] if curves else [])
 
 
 def main(argv: list[str] | None = None) -> None:
