@@ -33,11 +33,11 @@ def _drive(torcs: TorcsProcess, steps: int, steer: float, speed: float):
 
 
 def test_race_file_poses_the_car_and_names_our_robot():
-    spec = RaceSpec("g-track-1", "road", start=123.5, to_middle=-1.25, yaw=0.1, initial_speed=5.0)
+    spec = RaceSpec("g-track-1", "road", start=123.5, to_middle=-1.25, yaw=0.1)
     root = ET.fromstring(race_xml(spec))
     grid = {a.get("name"): float(a.get("val")) for a in root.iterfind(".//section[@name='Starting Grid']/attnum")}
     assert grid["gvf start distance"] == 123.5 and grid["gvf start to middle"] == -1.25
-    assert grid["gvf start yaw"] == pytest.approx(0.1) and grid["initial speed"] == 5.0 and grid["rows"] == 1
+    assert grid["gvf start yaw"] == pytest.approx(0.1) and grid["rows"] == 1
     track = root.find(".//section[@name='Tracks']/section[@name='1']")
     assert {a.get("name"): a.get("val") for a in track} == {"name": "g-track-1", "category": "road"}
     drivers = root.find(".//section[@name='Drivers']/section[@name='1']")

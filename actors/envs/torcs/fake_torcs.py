@@ -64,7 +64,7 @@ def main(argv: list[str]) -> int:
     x = _grid_value(race, "gvf start distance")
     y = _grid_value(race, "gvf start to middle")
     yaw = _grid_value(race, "gvf start yaw")
-    v = _grid_value(race, "initial speed")
+    v = 0.0  # TORCS starts every race from rest (its prestart brakes)
     t, raced, step, steer, target = CALL_DT, 0.0, 0, 0.0, 0.0
     while True:
         if step == hang_at:

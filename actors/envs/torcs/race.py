@@ -36,9 +36,8 @@ class RaceSpec:
     to_middle: float = 0.0
     """Lateral offset from the road's middle, m, + left."""
     yaw: float = 0.0
-    """Heading relative to the road's direction, rad, + left."""
-    initial_speed: float = 0.0
-    """Speed at the start, m/s."""
+    """Heading relative to the road's direction, rad, + left. (No initial speed: TORCS holds every
+    car with its brakes on for 1 s before the start, so a race always starts from rest.)"""
 
 
 def find_category(track: str, data_dir: Path) -> str:
@@ -55,7 +54,7 @@ def _num(name: str, value: float) -> str:
 
 def race_xml(spec: RaceSpec, name: str = "gvf-practice") -> str:
     """The race file for ``spec``: an endless practice session of our robot alone on the road."""
-    for value in (spec.start, spec.to_middle, spec.yaw, spec.initial_speed):
+    for value in (spec.start, spec.to_middle, spec.yaw):
         if value != value or value in (float("inf"), float("-inf")):
             raise ValueError(f"race pose must be finite, got {spec}")
     if spec.start < 0:
@@ -63,7 +62,7 @@ def race_xml(spec: RaceSpec, name: str = "gvf-practice") -> str:
     grid = (
         _num("rows", 1)
         + _num("distance to start", 0)
-        + _num("initial speed", spec.initial_speed)
+        + _num("initial speed", 0.0)
         + _num("initial height", 0.2)
         + _num("gvf start distance", spec.start)
         + _num("gvf start to middle", spec.to_middle)
