@@ -193,6 +193,7 @@ class TorcsProcess:
         self.proc: subprocess.Popen | None = None
         self._to_robot = -1
         self._from_robot = -1
+        self._send_error: OSError | None = None
         self.launches = 0
         self.relaunches = 0
 
@@ -209,12 +210,29 @@ class TorcsProcess:
         If TORCS died, hung or answered out of step, it is relaunched on the same race and the
         fresh race's first state (``step == 0``) is returned instead.
         """
+        self.send(steer, target_speed)
+        return self.receive()
+
+    def send(self, steer: float, target_speed: float) -> None:
+        """The first half of ``step``: several processes are sent their actions first, then each is
+        read with ``receive``, so their TORCS simulate at the same time (TorcsDrive's vector env)."""
         if self.proc is None:
             raise RuntimeError("step() before reset()")
         try:
             self._write(encode_action(steer, target_speed))
+        except OSError as e:
+            self._send_error = e  # a dead TORCS: reported and relaunched by receive()
+
+    def receive(self) -> CarState:
+        """The second half of ``step``: the state after the action that ``send`` wrote."""
+        if self.proc is None:
+            raise RuntimeError("receive() before reset()")
+        try:
+            if self._send_error is not None:
+                raise self._send_error
             return self._read_state(self.step_timeout)
         except (OSError, TorcsError) as e:
+            self._send_error = None
             self.relaunches += 1
             log.warning("TORCS (pid %s) failed a step (%s); relaunching: %s", self.proc.pid, e, self._log_tail())
             return self._launch_with_retries()
@@ -249,6 +267,7 @@ class TorcsProcess:
 
     def _launch(self, spec: RaceSpec) -> CarState:
         self._stop()
+        self._send_error = None
         race_file = self.workdir / "gvf-practice.xml"
         race_file.write_text(race_xml(spec, name="gvf-practice"))
         local_dir = self.workdir / "local"
