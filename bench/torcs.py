@@ -1,7 +1,8 @@
 """TORCS lockstep throughput (issue 15): control steps per second of one TORCS process driven by
-TorcsProcess (0.1 s of simulated time a step, no camera yet), the same with a relaunch every
-1,200 steps (an episode), N processes stepped side by side from N Python processes, and LaneDrive-v0
-(camera included) measured in the same run.
+TorcsProcess (0.1 s of simulated time a step, no camera), the same with a relaunch every 1,200 steps
+(an episode), N processes stepped side by side from N Python processes; then TorcsDrive-v0 (the
+gymnasium env: camera rendered every step, resets every 1,200 steps) for one process and for N
+spawned Python processes each with its own TORCS; and LaneDrive-v0 (camera included) in the same run.
 
 Usage: python bench/torcs.py [--seconds 3] [--procs 2]. Needs `make torcs`. The last line printed
 is one JSON object.
@@ -17,7 +18,7 @@ import time
 import gymnasium as gym
 import numpy as np
 
-import actors.envs  # noqa: F401  (registers LaneDrive-v0)
+import actors.envs  # noqa: F401  (registers LaneDrive-v0 and TorcsDrive-v0)
 from actors.envs.torcs.protocol import TorcsProcess
 from actors.envs.torcs.race import RaceSpec
 
@@ -42,15 +43,35 @@ def torcs_steps_per_s(seconds: float, episode_steps: int | None) -> float:
         return n / (time.perf_counter() - start)
 
 
-def _worker(seconds: float, out: mp.Queue) -> None:
-    out.put(torcs_steps_per_s(seconds, EPISODE_STEPS))
+def torcs_drive_steps_per_s(seconds: float) -> float:
+    """TorcsDrive-v0 with its camera, driven by the kinematic controller (the car stays on the road);
+    an episode ends at 1,200 steps and the env is reset as an actor would."""
+    from actors.controllers.kinematic import KinematicController
+
+    env = gym.make("TorcsDrive-v0", track=ROAD.track, max_steps=EPISODE_STEPS).unwrapped
+    try:
+        controller = KinematicController(vehicle=env.vehicle)
+        _, info = env.reset(seed=0)  # the first reset may draw the road's camera map: not timed
+        n, start = 0, time.perf_counter()
+        while time.perf_counter() - start < seconds:
+            _, _, terminated, truncated, info = env.step(controller.act(info))
+            n += 1
+            if terminated or truncated:
+                _, info = env.reset()
+        return n / (time.perf_counter() - start)
+    finally:
+        env.close()
 
 
-def parallel_steps_per_s(procs: int, seconds: float) -> float:
-    """Sum over ``procs`` spawned Python processes, each stepping its own TORCS."""
+def _worker(seconds: float, camera: bool, out: mp.Queue) -> None:
+    out.put(torcs_drive_steps_per_s(seconds) if camera else torcs_steps_per_s(seconds, EPISODE_STEPS))
+
+
+def parallel_steps_per_s(procs: int, seconds: float, camera: bool = False) -> float:
+    """Sum over ``procs`` spawned Python processes, each stepping its own TORCS (with the env's camera if asked)."""
     ctx = mp.get_context("spawn")
     out = ctx.Queue()
-    workers = [ctx.Process(target=_worker, args=(seconds, out)) for _ in range(procs)]
+    workers = [ctx.Process(target=_worker, args=(seconds, camera, out)) for _ in range(procs)]
     for w in workers:
         w.start()
     try:
@@ -91,8 +112,10 @@ def main() -> None:
         "torcs_steps_per_s_with_resets": torcs_steps_per_s(args.seconds, EPISODE_STEPS),
         "torcs_procs": args.procs,
         "torcs_parallel_steps_per_s": parallel_steps_per_s(args.procs, args.seconds),
-        "camera": False,  # TORCS's numbers are the protocol and physics alone (the camera is stage 4)
+        "torcs_drive_steps_per_s": torcs_drive_steps_per_s(args.seconds),  # with the camera
+        "torcs_drive_parallel_steps_per_s": parallel_steps_per_s(args.procs, args.seconds, camera=True),
     }
+    result["torcs_drive_steps_per_s_per_process"] = result["torcs_drive_parallel_steps_per_s"] / args.procs
     result["lane_drive_steps_per_s"], result["lane_drive_steps_per_s_without_resets"] = lane_drive_steps_per_s(
         args.seconds
     )
