@@ -18,7 +18,7 @@ import numpy as np
 import pytest
 
 import actors.envs  # noqa: F401  (registers TorcsDrive-v0)
-from actors.controllers.kinematic import KinematicController
+from actors.controllers.kinematic import KinematicController, drive_lap
 from actors.envs.torcs.protocol import TorcsProcess, find_install
 from actors.envs.torcs.race import RaceSpec
 from actors.envs.torcs.roads import PAPER_TEST_ROADS, load_road_set, road_names
@@ -135,6 +135,19 @@ def test_kinematic_controller_keeps_the_lane_on_a_test_road():
         assert worst < 0.75 and info["progress"] * 6205.5 > 300  # 40 s from rest: over 300 m of wheel-2
     finally:
         e.close()
+
+
+@needs_torcs
+@pytest.mark.slow
+def test_kinematic_controller_laps_every_test_road():
+    """The issue's target: every TORCS test road lapped with max |alpha| < 0.75 (spring alone is 22 km)."""
+    for name in road_names("test"):
+        e = gym.make("TorcsDrive-v0", track=name, random_start=False, max_steps=100_000).unwrapped
+        try:
+            lap = drive_lap(e, KinematicController(vehicle=e.vehicle), max_steps=40_000, seed=0)
+        finally:
+            e.close()
+        assert lap["lap_completed"] and lap["max_abs_alpha"] < 0.75, lap
 
 
 @needs_torcs

@@ -193,7 +193,7 @@ class TorcsSim:
             "curvature": float(tr.curvature[self.idx[i]]),
             "curvature_ahead": float(self.ahead[i][self.idx[i]]),
             "lane_half_width": self.roads[i].width / 2,
-            "station": float(st.dist_from_start),
+            "station": float(st.dist_from_start % st.track_length),  # TORCS reports the start line as L, not 0
             "steer": float(st.steer * STEER_LOCK),
             "steps": int(self.steps[i]),
             "relaunched": bool(self.relaunched[i]),
