@@ -6,7 +6,15 @@ built anew for each episode) and append shards to one dataset (`common.dataset`)
     gvf-collect collect.out=datasets/lanedrive collect.transitions=100000 collect.workers=2
 
 The controller's noise is in its targets, not its actions, so its action density is unknown:
-`log_mu` is NaN and Algorithm 2 estimates mu with the discriminator, as the paper did.
+`log_mu` is NaN and Algorithm 2 estimates mu with the discriminator, as the paper did. With
+`collect.action_noise` > 0 each action is drawn from a normal around the controller's, truncated
+to the box (independent per dimension and step), and its density is known and stored. Why it
+exists: on LaneDrive the controller's targets lie a pure-pursuit look-ahead (16 m) ahead, so its
+random walk of the targets moves the steering by ~0.002 a step, where the Jackal's targets a few
+centimetres ahead made the same walk swing its steering; without noise the data holds about one
+action per state, and BCQ, which can only choose among the actions the data supports, has no
+choice to make (measured: its VAE's KL fell to 1e-7, and GVF-BCQ imitated the controller's
+last-action habit off the road within 1-2 s, docs/results-offline.md).
 Appending again with another `seed` adds episodes; the same seed twice is refused (its
 episodes would repeat).
 """
@@ -27,6 +35,7 @@ from tensordict import TensorDict
 from actors.controllers.random_walk import for_lane_drive, lane_drive_pose
 from actors.envs.lane_drive import LaneDriveVectorEnv
 from common.dataset import FIELDS, DatasetError, DatasetWriter, _read_manifest
+from common.density import log_truncated_normal
 
 log = logging.getLogger(__name__)
 EPISODE_BITS = 32  # episode id = (writer id << 32) | episode count of that writer
@@ -97,8 +106,26 @@ def _step_record(obs, info, action, next_obs, reward, terminated, truncated, nex
     }
 
 
+def truncated_normal(rng: np.random.Generator, mean: np.ndarray, std: float) -> np.ndarray:
+    """Samples of N(mean, std^2) truncated to [-1, 1], per element (redrawn until inside)."""
+    out = mean + std * rng.standard_normal(mean.shape)
+    bad = np.abs(out) > 1.0
+    while bad.any():
+        out[bad] = mean[bad] + std * rng.standard_normal(int(bad.sum()))
+        bad = np.abs(out) > 1.0
+    return out.astype(np.float32)
+
+
 def collect_worker(
-    root: str, seed: int, worker: int, quota: int, cars: int, shard_size: int, env_kwargs: dict, progress=None
+    root: str,
+    seed: int,
+    worker: int,
+    quota: int,
+    cars: int,
+    shard_size: int,
+    env_kwargs: dict,
+    progress=None,
+    action_noise: float = 0.0,
 ) -> int:
     """Drive `cars` cars with the random-walk controller until `quota` transitions are written."""
     torch.set_num_threads(1)
@@ -114,8 +141,14 @@ def collect_worker(
     buffer, written = ShardBuffer(), 0
     while written < quota:
         action = np.stack([c.act(lane_drive_pose(env, i)) for i, c in enumerate(controllers)])
+        log_mu = np.full((cars, 1), np.nan, np.float32)
+        if action_noise > 0:
+            mean, action = action, truncated_normal(rng, action.astype(np.float64), action_noise)
+            log_mu = log_truncated_normal(torch.from_numpy(action), torch.from_numpy(mean), action_noise).numpy()
         next_obs, reward, terminated, truncated, next_info = env.step(action)
-        buffer.add(_step_record(obs, info, action, next_obs, reward, terminated, truncated, next_info, episode, step))
+        record = _step_record(obs, info, action, next_obs, reward, terminated, truncated, next_info, episode, step)
+        record["log_mu"] = log_mu.astype(np.float32)
+        buffer.add(record)
         step += 1
         for i in np.flatnonzero(terminated | truncated):
             controllers[i] = for_lane_drive(env, rng, int(i))  # the car already stands on its next road
@@ -148,7 +181,8 @@ def collect(cfg, root: str | Path, show_progress: bool = True) -> dict:
     env_kwargs = asdict(cfg.env)
     env_kwargs.pop("id")
     env_kwargs.update(track=c.split, direction="random", random_start=True)
-    DatasetWriter(root, "init", meta={"controller": "random_walk", "env": env_kwargs, "split": c.split})
+    meta = {"controller": "random_walk", "action_noise": c.action_noise, "env": env_kwargs, "split": c.split}
+    DatasetWriter(root, "init", meta=meta)
     quotas = [c.transitions // c.workers + (w < c.transitions % c.workers) for w in range(c.workers)]
     ctx = mp.get_context("spawn")
     counts = ctx.Queue()
@@ -156,7 +190,7 @@ def collect(cfg, root: str | Path, show_progress: bool = True) -> dict:
     procs = [
         ctx.Process(
             target=collect_worker,
-            args=(str(root), cfg.seed, w, q, c.cars, c.shard_size, env_kwargs, counts),
+            args=(str(root), cfg.seed, w, q, c.cars, c.shard_size, env_kwargs, counts, c.action_noise),
             name=f"collector-{w}",
         )
         for w, q in enumerate(quotas)

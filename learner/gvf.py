@@ -39,25 +39,18 @@ matters in scale only with plain SGD, as in the tests.
 
 from __future__ import annotations
 
-import math
 from collections.abc import Mapping, Sequence
 
 import torch
 from torch import Tensor
 
 from common.config.agent import TERMINALS
-from learner.behaviour import ACTION_HIGH, ACTION_LOW
-
-_LOG_SQRT_2PI = 0.5 * math.log(2.0 * math.pi)
+from common.density import log_truncated_normal
 
 
 def log_tau(action: Tensor, last_action: Tensor, width: float) -> Tensor:
     """log tau(a|s) (B, 1): truncated normal N(last_action, width^2) on the box, per dimension."""
-    mean = last_action.clamp(ACTION_LOW, ACTION_HIGH)
-    z = (action - mean) / width
-    log_pdf = -0.5 * z.square() - math.log(width) - _LOG_SQRT_2PI
-    mass = torch.special.ndtr((ACTION_HIGH - mean) / width) - torch.special.ndtr((ACTION_LOW - mean) / width)
-    return (log_pdf - mass.log()).sum(-1, keepdim=True)
+    return log_truncated_normal(action, last_action, width)
 
 
 def importance_ratio(log_tau_value: Tensor, log_mu_hat_value: Tensor, rho_max: float) -> tuple[Tensor, Tensor]:

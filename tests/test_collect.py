@@ -81,3 +81,20 @@ def test_a_bad_collect_value_is_refused_naming_the_field():
         compose_run(["collect.split=holdout"])
     with pytest.raises((ValueError, DatasetError), match="offline.method"):
         compose_run(["offline.method=cql"])
+
+
+def test_action_noise_is_a_truncated_normal_whose_density_is_stored(tmp_path):
+    from actors.collect import truncated_normal
+
+    rng = np.random.default_rng(0)
+    samples = truncated_normal(rng, np.zeros(20_000), 0.15)
+    assert abs(samples.std() - 0.15) < 0.005 and abs(samples.mean()) < 0.005
+    edge = truncated_normal(rng, np.full(20_000, 0.95), 0.15)
+    assert edge.max() <= 1.0 and edge.mean() < 0.95  # cut at the box's edge, not piled on it
+    collect_worker(str(tmp_path), seed=1, worker=0, quota=60, cars=2, shard_size=100, env_kwargs=ENV, action_noise=0.15)
+    td, _ = Dataset.open(tmp_path).shard(0)
+    log_mu = torch.as_tensor(td["log_mu"])
+    # a known density: finite, at most the peak of two normals of std 0.15 each cut to half its mass
+    peak = 2 * (-np.log(0.15 * np.sqrt(2 * np.pi)) + np.log(2.0))
+    assert torch.isfinite(log_mu).all() and float(log_mu.max()) <= peak
+    assert torch.as_tensor(td["action"]).abs().max() <= 1.0

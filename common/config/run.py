@@ -136,6 +136,10 @@ class CollectConfig:
     """Transitions per shard file set (the unit that is written atomically)."""
     split: str = "train"
     """Roads driven: 'train' (the paper's), 'test' or 'all'."""
+    action_noise: float = 0.15
+    """Std of a truncated normal around each of the controller's actions (0: the paper's controller
+    alone, with which GVF-BCQ lapped none of the test roads); its density is stored as log_mu
+    (actors/collect.py says why it exists)."""
 
 
 @dataclass
@@ -246,6 +250,8 @@ def check_offline(run: RunConfig) -> None:
     ):
         if value < 1:
             raise ValueError(f"collect.{name} must be >= 1, got {value}")
+    if not 0.0 <= c.action_noise <= 2.0:
+        raise ValueError(f"collect.action_noise must be in [0, 2], got {c.action_noise}")
     if c.split not in SPLITS:
         raise ValueError(f"collect.split must be one of {SPLITS}, got {c.split!r}")
     if o.method not in OFFLINE_METHODS:
