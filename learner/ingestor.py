@@ -18,6 +18,7 @@ until its next one arrives) for the learner's crash memory (`learner.replay.Cras
 
 from __future__ import annotations
 
+import dataclasses
 import logging
 from collections import deque
 
@@ -47,6 +48,9 @@ class Ingestor:
         self.ingest_batch, self.max_tracks, self.crash_steps = ingest_batch, max_tracks, crash_steps
         self.accept_log_mu = accept_log_mu
         """False (`learner.rho_at=learner`): a chunk's log_mu is ignored, the learner's g decides rho."""
+        self.min_behaviour_version = 0
+        """A log_mu computed with an older discriminator is ignored (the learner's g decides): set
+        past the warm start, whose trained g the actors only get with the next broadcast."""
         self.rejects = wire.RejectCounter(wire.Limits(max_bytes=max_chunk_bytes), logger=log)
         self.seq = SequenceTracker()
         self.tracks: dict[str, int] = {}
@@ -71,6 +75,8 @@ class Ingestor:
             ):
                 continue  # counted by kind and dropped
             self.lags.append(max(0, updates - chunk.policy_version))  # chunks of a previous epoch can be ahead
+            if chunk.log_mu is not None and chunk.behaviour_version < self.min_behaviour_version:
+                chunk = dataclasses.replace(chunk, log_mu=None)  # from the untrained g: measured rho_bar 26 after it
             if chunk.log_mu is not None and self.accept_log_mu:
                 self.rho_lags.append(max(0, updates - chunk.behaviour_version))
             self._hold_out(chunk)

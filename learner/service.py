@@ -177,6 +177,7 @@ class LearnerService:
             self.limiter.paused = True
             self.flow_pauses += 1
         self.core.warm_start()
+        self.intake.min_behaviour_version = self.core.updates + 1  # the actors' g is the untrained one until then
         self.flow(time.monotonic())
 
     def flow(self, now: float) -> None:

@@ -148,3 +148,15 @@ def test_an_inproc_run_with_rho_at_actor_trains_on_the_actors_log_mu(tmp_path):
     result, ended = run_inproc(["learner.max_updates=30", "learner.rho_at=actor"], tmp_path)
     assert ended and result["updates"] >= 30
     assert result["rejected"] == 0 and result["rho_lag"] is not None  # chunks came with log_mu and were used
+
+
+def test_log_mu_from_a_discriminator_before_the_warm_start_is_ignored(core):
+    """The actors hold the untrained g until the first broadcast after the warm start: their
+    log_mu is dropped (the learner's own g decides), a later version's is taken."""
+    intake = Ingestor(max_chunk_bytes=1 << 24, ingest_batch=64)
+    intake.min_behaviour_version = 1  # what the service sets after a warm start at update 0
+    old = acting_with(broadcast(core, version=0)).with_log_mu(random_chunk(0))
+    new = acting_with(broadcast(core, version=50)).with_log_mu(random_chunk(1, seq=1))
+    batch = intake.take(inbox(wire.encode(old), wire.encode(new)), inbox(), updates=60)
+    log_mu = batch["log_mu"].reshape(-1)
+    assert torch.isnan(log_mu[:12]).all() and torch.isfinite(log_mu[12:]).all()
