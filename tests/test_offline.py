@@ -15,7 +15,9 @@ from learner.offline import RepresentationTrainer, recorded_order
 from tests.test_gvf import GAMMAS, N_POS, WIDTH, behaviour_data, train, true_values
 from tests.test_update import TINY
 
-CHAIN_SCALE = dataclasses.replace(TINY, gvf_hidden=[64, 64], batch_size=64, mirror=0.0, lr_gvf=3e-3, lr_behaviour=3e-3)
+CHAIN_SCALE = dataclasses.replace(
+    TINY, conv_channels=[2, 2, 2, 2, 2], gvf_hidden=[64, 64], batch_size=32, mirror=0.0, lr_gvf=3e-3, lr_behaviour=3e-3
+)
 
 
 def chain_dataset(root, n: int, shards: int = 4) -> TensorDict:
