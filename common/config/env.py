@@ -1,11 +1,13 @@
-"""Schema of the `env` config group: the embedded LaneDrive simulator (Hydra structured config).
+"""Schema of the `env` config group: the embedded LaneDrive simulator, or TORCS (Hydra structured config).
 
-The simulator takes these same fields as keyword arguments of ``gymnasium.make("LaneDrive-v0", ...)``.
+The simulator named by ``id`` takes these same fields as keyword arguments of ``gymnasium.make(id, ...)``.
 """
 
 from __future__ import annotations
 
 from dataclasses import dataclass, field, fields
+
+SIMULATORS = ("LaneDrive-v0", "TorcsDrive-v0")  # the gymnasium ids an actor and the evaluator can drive
 
 
 @dataclass
@@ -45,7 +47,7 @@ class EnvConfig:
     """LaneDrive-v0: a lane-keeping car with a front camera on closed roads."""
 
     id: str = "LaneDrive-v0"
-    """Gymnasium id of the simulator."""
+    """Gymnasium id of the simulator: 'LaneDrive-v0' (embedded) or 'TorcsDrive-v0' (TORCS, after `make torcs`)."""
     track: str = "train"
     """Road set sampled at reset: 'train', 'test', 'all', 'procedural', or one library name."""
     direction: str = "random"
@@ -84,6 +86,10 @@ class EnvConfig:
 
     def validate(self) -> None:
         """Refuse a bad config with a message that names the field."""
+        if self.id not in SIMULATORS:
+            raise ValueError(f"env.id must be one of {SIMULATORS}, got {self.id!r}")
+        if self.id == "TorcsDrive-v0" and self.track == "procedural":
+            raise ValueError("env.track: TorcsDrive-v0 drives torcs-data roads ('train', 'test', 'all' or a road name)")
         if self.direction not in ("ccw", "cw", "random"):
             raise ValueError(f"env.direction must be 'ccw', 'cw' or 'random', got {self.direction!r}")
         if not 2.0 <= self.lane_width <= 12.0:
