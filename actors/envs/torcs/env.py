@@ -37,14 +37,16 @@ from actors.envs.torcs.sim import TorcsSim, torcs_vehicle
 from common.config.env import EnvConfig
 
 __all__ = ["TorcsDriveEnv", "TorcsDriveVectorEnv", "torcs_vehicle"]
+TORCS_ID = "TorcsDrive-v0"
 
 
 def _config(kwargs: dict) -> EnvConfig:
-    kwargs.pop("id", None)  # Hydra's env group carries the gymnasium id; it is not an option here
-    return EnvConfig.from_kwargs(**kwargs)
+    kwargs.pop("id", None)  # Hydra's env group carries the gymnasium id; this env is always TORCS
+    return EnvConfig.from_kwargs(id=TORCS_ID, **kwargs)
 
 
-def _sim(cfg: EnvConfig, n: int, prefix: str | Path | None) -> TorcsSim:
+def make_sim(cfg: EnvConfig, n: int, prefix: str | Path | None = None) -> TorcsSim:
+    """`n` cars, one TORCS process each, refused with `make torcs` in the message when TORCS is not built."""
     install = find_install(Path(prefix) if prefix else None)
     if install is None:
         raise TorcsError(f"no TORCS under {prefix or default_prefix()}: run `make torcs`")
@@ -61,7 +63,7 @@ class TorcsDriveEnv(gym.Env):
             raise ValueError(f"render_mode must be None or 'rgb_array', got {render_mode!r}")
         self.cfg = _config(kwargs)
         self.render_mode = render_mode
-        self.sim = _sim(self.cfg, 1, prefix)
+        self.sim = make_sim(self.cfg, 1, prefix)
         self.vehicle = torcs_vehicle(self.cfg.vehicle.v_max)
         self.observation_space = observation_space()
         self.action_space = action_space()
@@ -108,7 +110,7 @@ class TorcsDriveVectorEnv(VectorEnv):
         self.track_chooser, self.on_episode_end = track_chooser, on_episode_end
         self.num_envs = num_envs
         self.render_mode = render_mode
-        self.sim = _sim(self.cfg, num_envs, prefix)
+        self.sim = make_sim(self.cfg, num_envs, prefix)
         self.vehicle = torcs_vehicle(self.cfg.vehicle.v_max)
         self.single_observation_space = observation_space()
         self.single_action_space = action_space()

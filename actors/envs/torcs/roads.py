@@ -9,6 +9,10 @@ has the steepest grades of torcs-data (20% over 50 m), so "sloped" cannot mean u
 banking is the slope left to read. The rule removes the six 15-16 degree speedways (b- to g-speedway)
 and ole-road-1. The paper's test roads in torcs-data 1.3.7 are dirt-4, spring, alpine-2, wheel-2 and
 a-speedway (evo-2-r is not in it); with 31 roads, 15% is those 5.
+
+Validation roads (``validation``: dirt-3, g-track-1, michigan; a dirt road, a road course and an oval,
+short so each evaluation stays cheap, all lapped by the kinematic controller) are train roads held out of
+priority track sampling (`training_roads`): the periodic evaluator picks its best policy on them, not on test roads.
 """
 
 from __future__ import annotations
@@ -23,6 +27,7 @@ ROADS_PATH = Path(__file__).with_name("roads.json")
 PAPER_TEST_ROADS = ("dirt-4", "evo-2-r", "spring", "alpine-2", "wheel-2", "a-speedway")
 MAX_BANKING_DEG = 12.0
 TEST_FRACTION = 0.15
+VALIDATION_ROADS = ("dirt-3", "g-track-1", "michigan")
 
 
 def make_road_set(data_dir: Path) -> dict:
@@ -56,6 +61,7 @@ def make_road_set(data_dir: Path) -> dict:
         "paper_test_missing": [n for n in PAPER_TEST_ROADS if n not in roads and n not in excluded],
         "train": sorted(n for n in roads if n not in test),
         "test": test,
+        "validation": [n for n in VALIDATION_ROADS if n in roads and n not in test],
         "roads": roads,
         "excluded": excluded,
     }
@@ -68,13 +74,19 @@ def load_road_set() -> dict:
 
 
 def road_names(split: str) -> list[str]:
-    """TORCS roads in ``split`` ('train', 'test' or 'all')."""
+    """TORCS roads in ``split`` ('train', 'test', 'all', or 'validation': a few of 'train')."""
     roads = load_road_set()
     if split == "all":
         return roads["train"] + roads["test"]
-    if split not in ("train", "test"):
-        raise ValueError(f"TORCS road split must be 'train', 'test' or 'all', got {split!r}")
+    if split not in ("train", "test", "validation"):
+        raise ValueError(f"TORCS road split must be 'train', 'test', 'all' or 'validation', got {split!r}")
     return list(roads[split])
+
+
+def training_roads(split: str) -> list[str]:
+    """The roads a reset draws from for ``split``: its roads less the validation roads."""
+    held_out = set(road_names("validation"))
+    return [n for n in road_names(split) if n not in held_out]
 
 
 def main() -> None:

@@ -28,7 +28,7 @@ from actors.envs.torcs.geometry import TorcsRoad, centreline, read_road
 from actors.envs.torcs.protocol import CarState, TorcsInstall, TorcsProcess
 from actors.envs.torcs.race import RaceSpec
 from actors.envs.torcs.road_map import load_or_build
-from actors.envs.torcs.roads import road_names
+from actors.envs.torcs.roads import training_roads
 from actors.envs.tracks import Track
 from common.config.env import DamageConfig, EnvConfig, VehicleConfig
 
@@ -92,8 +92,8 @@ class TorcsSim:
         """
         options = options or {}
         name = options.get("track") or self.cfg.track
-        if name in ("train", "test", "all"):
-            name = str(rng.choice(road_names(name)))
+        if name in ("train", "test", "all"):  # the validation roads are never drawn
+            name = str(rng.choice(training_roads(name)))
         road, track, ahead = road_geometry(name, self.data_dir)
         self.roads[i], self.tracks[i], self.ahead[i] = road, track, ahead
         self.maps[i] = road_map(name, self.data_dir, self.damage)
@@ -128,16 +128,20 @@ class TorcsSim:
         self.frames[i, 1] = self.frames[i, 0]
 
     # -- dynamics -----------------------------------------------------------------------
-    def step(self, actions: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """Advance every car by 0.1 s of TORCS time; returns (terminated, truncated)."""
+    def step(self, actions: np.ndarray, active: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
+        """Advance every car (or the `active` ones; the others stand still, their TORCS idle) by 0.1 s of
+        TORCS time; returns (terminated, truncated)."""
         actions = np.asarray(actions, np.float64).reshape(self.n, 2)
         if not np.isfinite(actions).all():
             raise ValueError(f"TorcsDrive actions must be finite, got {actions.tolist()}")
-        a = np.clip(actions, -1.0, 1.0)
+        live = np.ones(self.n, bool) if active is None else np.asarray(active, bool).reshape(self.n)
+        a = np.where(live[:, None], np.clip(actions, -1.0, 1.0), self.last_action)
         target = self.v_max * (0.75 + 0.25 * a[:, 1])  # -1..1 -> 0.5..1.0 v_max, as LaneDrive
-        for i, p in enumerate(self.procs):
-            p.send(float(a[i, 0]), float(target[i]))
-        for i, p in enumerate(self.procs):
+        cars = np.flatnonzero(live)
+        for i in cars:
+            self.procs[i].send(float(a[i, 0]), float(target[i]))
+        for i in cars:
+            p = self.procs[i]
             before = self.states[i].dist_from_start
             self.states[i] = p.receive()
             self.relaunched[i] = self.states[i].step == 0  # a relaunch started the race afresh
@@ -146,9 +150,9 @@ class TorcsSim:
             self.travelled[i] += (moved + length / 2) % length - length / 2 if not self.relaunched[i] else 0.0
             self._locate(i)
         self.last_action[:] = a
-        self.steps += 1
+        self.steps[live] += 1
         self.reward = self.speed * (np.cos(self.beta) - np.abs(self.alpha)) / self.v_max
-        self.frames[:, 1] = self.frames[:, 0]
+        self.frames[live, 1] = self.frames[live, 0]  # a car that stood still keeps its pair (its view is unchanged)
         self.camera.render(self.maps, self.x, self.y, self.theta, self.luts, self.frames[:, 0])
         terminated = (np.abs(self.alpha) > 1.0) & ~self.relaunched
         truncated = ((self.steps >= self.cfg.max_steps) | self.relaunched) & ~terminated
