@@ -9,11 +9,13 @@ transition chunks and episode summaries out, weights and the global track table 
 The simulator never waits on the network longer than `actor.send_timeout_s` (see `Sender`);
 when the learner is gone the actor keeps its last weights, keeps sending (puts go nowhere)
 and adopts new weights as soon as a learner publishes again.
+
+The simulators are LaneDrive's, or TORCS's with env.id=TorcsDrive-v0 (`actors.envs.simulators`); on TORCS
+the sampled roads are roads.json's train roads less its validation roads.
 """
 
 from __future__ import annotations
 
-import dataclasses
 import logging
 import threading
 import time
@@ -24,8 +26,7 @@ import torch
 
 from actors.acting import Acting
 from actors.chunker import ChunkBuilder
-from actors.envs.lane_drive import LaneDriveVectorEnv
-from actors.envs.tracks import track_names
+from actors.envs.simulators import known_roads, road_names, vector_env
 from actors.sender import Sender
 from actors.track_sampling import PriorityTrackSampler
 from actors.weights_client import WeightsClient
@@ -39,26 +40,21 @@ ROLE = "actor"
 SAMPLED = ("train", "test", "all")
 
 
-def env_kwargs(cfg: RunConfig) -> dict:
-    kwargs = dataclasses.asdict(cfg.env)
-    kwargs.pop("id")
-    return kwargs
-
-
 def actor_seed(seed: int, name: str) -> int:
     """Actors started with the same seed but different names must not drive the same roads and noise."""
     return (seed * 1_000_003 + zlib.crc32(name.encode())) % 2**31
 
 
-def make_env(cfg: RunConfig, sampler: PriorityTrackSampler) -> LaneDriveVectorEnv:
-    """The actor's simulators. At each reset the sampler draws the car's next road, having first
-    recorded the steps of the episode that just ended (a named or procedural road bypasses it)."""
+def make_env(cfg: RunConfig, sampler: PriorityTrackSampler):
+    """The actor's simulators (LaneDrive, or TORCS with env.id=TorcsDrive-v0). At each reset the sampler
+    draws the car's next road, having first recorded the steps of the episode that just ended (a named or
+    procedural road bypasses it)."""
     sampled = cfg.env.track in SAMPLED
-    return LaneDriveVectorEnv(
+    return vector_env(
+        cfg.env,
         cfg.actor.num_envs,
         track_chooser=(lambda i: sampler.sample()) if sampled else None,
         on_episode_end=lambda i, info: sampler.record(str(info["track"]), int(info["steps"])),
-        **env_kwargs(cfg),
     )
 
 
@@ -73,10 +69,10 @@ def run_actor(cfg: RunConfig, t, stop: threading.Event, env_factory=make_env) ->
     torch.set_num_threads(a.torch_threads)
     seed = actor_seed(a.seed, a.name)
     rng = np.random.default_rng(seed)
-    sampler = PriorityTrackSampler(track_names(a.track_split), rng)
+    sampler = PriorityTrackSampler(road_names(cfg.env, a.track_split), rng)
     env = env_factory(cfg, sampler)
     sampled = cfg.env.track in SAMPLED  # named and procedural roads bypass priority track sampling
-    known_roads = set(track_names("all"))
+    roads = known_roads(cfg.env)
     acting = Acting(cfg.agent, cfg.scale, a, a.num_envs, seed=seed)
     sender = Sender(a.send_queue, a.send_timeout_s)
     rejects = wire.RejectCounter()
@@ -132,7 +128,7 @@ def run_actor(cfg: RunConfig, t, stop: threading.Event, env_factory=make_env) ->
             poll_weights()
             r = tracks_in.get(timeout=0)
             table = rejects.decode(r.payload, expect=wire.TrackTable, key=r.key) if r is not None and sampled else None
-            if table is not None and rejects.obeys(lambda: check_tracks(table, known_roads), r.key):
+            if table is not None and rejects.obeys(lambda: check_tracks(table, roads), r.key):
                 sampler.update(table.steps)
             actions = acting.act(obs, info)
             next_obs, reward, term, trunc, info = env.step(actions)
