@@ -1,20 +1,28 @@
 """Drive a policy without exploration noise over a set of roads and compute the paper's
-metrics per road (one lap from the start line, centred, or until the episode ends)."""
+metrics per road (one lap from the start line, centred, or until the episode ends).
+
+On TORCS (``id='TorcsDrive-v0'``) each road is driven once, its own way (TORCS roads have one
+direction), one TORCS process per road, all stepped together as LaneDrive's cars are.
+"""
 
 from __future__ import annotations
 
+import dataclasses
+import math
 from typing import Callable
 
 import numpy as np
 
 from actors.envs.sim import LaneDriveSim
-from actors.envs.tracks import track_names
+from actors.envs.simulators import is_torcs, road_names
 from actors.evaluation.metrics import drive_metrics
 from common.config.env import EnvConfig
 
 # policy(obs, info) -> actions (n, 2) in [-1, 1], for a batch of n cars (info: name -> (n,) array)
 PolicyFn = Callable[[dict, dict], np.ndarray]
 TRACE = ("reward", "speed", "alpha", "beta", "progress", "action")
+TORCS_DIRECTION = "forward"  # the one way a TORCS road is driven
+LAP_MARGIN = 1.5  # a TORCS lap may take this many times as long as at the slowest target speed
 
 
 def evaluate(
@@ -26,18 +34,45 @@ def evaluate(
     All drives run at once, one car each, so the policy sees one batch per step (a network's
     forward costs about as much for 12 cars as for 1); a car's drive ends at its lap or episode end.
     """
-    drives = [(name, d) for name in (tracks or track_names(split)) for d in directions]
-    sim = LaneDriveSim(EnvConfig.from_kwargs(lighting=False, **env_kwargs), len(drives))
+    cfg = EnvConfig.from_kwargs(lighting=False, **env_kwargs)
+    names = list(tracks or road_names(cfg, split))
+    if is_torcs(cfg):
+        drives = [(name, TORCS_DIRECTION) for name in names]
+        sim = _torcs_sim(cfg, names)
+        try:
+            return _drive(policy, sim, drives, [{"track": n, "random_start": False} for n in names], torcs=True)
+        finally:
+            sim.close()
+    drives = [(name, d) for name in names for d in directions]
+    sim = LaneDriveSim(cfg, len(drives))
+    options = [{"track": name, "direction": d, "random_start": False} for name, d in drives]
+    return _drive(policy, sim, drives, options, torcs=False)
+
+
+def _torcs_sim(cfg: EnvConfig, names: list[str]):
+    """One TORCS process per road, with a horizon that fits a lap of the longest road."""
+    from actors.envs.torcs.env import make_sim
+    from actors.envs.torcs.sim import road_geometry
+
+    sim = make_sim(cfg, len(names))
+    longest = max(road_geometry(n, sim.data_dir)[0].length for n in names)
+    lap_steps = math.ceil(LAP_MARGIN * longest / (0.5 * cfg.vehicle.v_max * 0.1))  # 0.1 s a TORCS step
+    sim.cfg = dataclasses.replace(cfg, max_steps=max(cfg.max_steps, lap_steps))  # spring is 22 km: 2,200 s at 10 m/s
+    return sim
+
+
+def _drive(policy: PolicyFn, sim, drives: list[tuple[str, str]], options: list[dict], torcs: bool) -> list[dict]:
     rng = np.random.default_rng(0)  # unused without random starts and lighting
-    for i, (name, d) in enumerate(drives):
-        sim.reset(i, rng, {"track": name, "direction": d, "random_start": False})
+    for i, opts in enumerate(options):
+        sim.reset(i, rng, opts)
     infos = [sim.info(i) for i in range(len(drives))]
     traces = [{k: [] for k in TRACE} for _ in drives]
     running = np.array([not info["lap_completed"] for info in infos])
     while running.any():
         batch_info = {k: np.array([info[k] for info in infos]) for k in infos[0]}
         actions = np.asarray(policy(sim.observation(), batch_info), np.float32).reshape(len(drives), 2)
-        terminated, truncated = sim.step(actions)  # finished cars drive on, unrecorded
+        # finished LaneDrive cars drive on, unrecorded; a finished TORCS car's process waits, costing nothing
+        terminated, truncated = sim.step(actions, running) if torcs else sim.step(actions)
         for i in np.flatnonzero(running):
             infos[i] = info = sim.info(i)
             for key, value in zip(

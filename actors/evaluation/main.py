@@ -1,6 +1,7 @@
 """`gvf-eval`: evaluate a checkpoint (`checkpoint=PATH`) or the kinematic controller
 (`policy=kinematic`) on the held-out roads and write eval.json, eval.md and figures; with
-`eval.runs=DIR`, also learning curves from the eval.jsonl files of the runs under DIR."""
+`eval.runs=DIR`, also learning curves from the eval.jsonl files of the runs under DIR.
+`env=torcs` drives the TORCS test roads (after `make torcs`), each once, its own way."""
 
 from __future__ import annotations
 
@@ -8,6 +9,7 @@ import dataclasses
 import logging
 from pathlib import Path
 
+from actors.envs.simulators import is_torcs, vehicle
 from actors.evaluation.evaluate import evaluate
 from actors.evaluation.policies import checkpoint_policy, kinematic_policy
 from actors.evaluation.report import learning_curves, write_report
@@ -20,7 +22,7 @@ DEFAULT_DAMAGE = DamageConfig(gap_fraction=0.3, fade_fraction=0.3, distractors_p
 
 def eval_env_kwargs(cfg: RunConfig) -> dict:
     env = dataclasses.asdict(cfg.env)
-    for key in ("id", "track", "direction", "random_start", "lighting"):
+    for key in ("track", "direction", "random_start", "lighting"):  # env.id stays: it names the simulator
         env.pop(key)
     if cfg.eval.damaged and not any(dataclasses.asdict(cfg.env.damage).values()):
         env["damage"] = dataclasses.asdict(DEFAULT_DAMAGE)
@@ -29,7 +31,7 @@ def eval_env_kwargs(cfg: RunConfig) -> dict:
 
 def run_eval(cfg: RunConfig, out_dir: str | Path) -> list[Path]:
     if cfg.policy == "kinematic":
-        policy, title = kinematic_policy(), "kinematic controller"
+        policy, title = kinematic_policy(vehicle(cfg.env)), "kinematic controller"
     elif cfg.policy == "checkpoint":
         if not cfg.checkpoint:
             raise ValueError("gvf-eval needs checkpoint=PATH (a ckpt-*.pt file or a run folder), or policy=kinematic")
@@ -37,6 +39,8 @@ def run_eval(cfg: RunConfig, out_dir: str | Path) -> list[Path]:
         title = f"{meta['agent']} after {meta['updates']} updates"
     else:
         raise ValueError(f"policy must be 'checkpoint' or 'kinematic', got {cfg.policy!r}")
+    if cfg.eval.video and is_torcs(cfg.env):  # refused before any drive, not after
+        raise ValueError("eval.video draws LaneDrive's top-down view: not available with env.id=TorcsDrive-v0")
     results = evaluate(policy, cfg.eval.split, tuple(cfg.eval.directions), **eval_env_kwargs(cfg))
     title += " (damaged markings)" if cfg.eval.damaged else ""
     files = write_report(results, out_dir, title)

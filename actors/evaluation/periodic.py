@@ -2,7 +2,8 @@
 broadcast policy, drives the held-out roads without exploration noise, and logs the result
 under eval/ in TensorBoard and as a line of eval.jsonl in the run folder (for learning curves).
 It runs in its own process, so training never waits for it. Each evaluation also drives the
-validation roads (`eval.validation_tracks`: procedural roads, neither train nor test), and the
+validation roads (`eval.validation_tracks`: procedural roads, neither train nor test; on TORCS,
+roads.json's validation roads, train roads held out of sampling), and the
 policy of the best validation so far (most laps, then least near-out-of-lane, then reward per second) is kept as
 checkpoints/best-policy.pt, which gvf-eval and the comparison load like a learner checkpoint.
 Choosing on the test roads themselves would make any number reported from that policy optimistic."""
@@ -18,6 +19,7 @@ from pathlib import Path
 from torch.utils.tensorboard import SummaryWriter
 
 from actors.acting import Acting
+from actors.envs.simulators import is_torcs
 from actors.envs.tracks import track_names
 from actors.evaluation.evaluate import evaluate, summary
 from actors.evaluation.main import eval_env_kwargs
@@ -55,15 +57,20 @@ def validation_tracks(names: list[str]) -> list[str]:
     return list(names)
 
 
+def validation_roads(cfg: RunConfig) -> list[str]:
+    """The roads the best policy is chosen on: `eval.validation_tracks` on LaneDrive, roads.json's
+    validation roads on TORCS (which has no procedural roads; actors never sample those)."""
+    if is_torcs(cfg.env):
+        from actors.envs.torcs.roads import road_names
+
+        return road_names("validation")
+    return validation_tracks(cfg.eval.validation_tracks)
+
+
 def validate(policy, cfg: RunConfig) -> dict:
     """Mean metrics of `policy` on the validation roads: what selects the best policy."""
     return summary(
-        evaluate(
-            policy,
-            directions=tuple(cfg.eval.directions),
-            tracks=validation_tracks(cfg.eval.validation_tracks),
-            **eval_env_kwargs(cfg),
-        )
+        evaluate(policy, directions=tuple(cfg.eval.directions), tracks=validation_roads(cfg), **eval_env_kwargs(cfg))
     )
 
 
@@ -85,7 +92,7 @@ def run_evaluator(cfg: RunConfig, t, run_dir: str | Path, stop: threading.Event)
     writer = SummaryWriter(str(Path(run_dir) / "tb" / "eval"))
     due = every
     best_path = Path(run_dir) / "checkpoints" / BEST
-    validation_tracks(cfg.eval.validation_tracks)  # a bad list is refused before any drive
+    validation_roads(cfg)  # a bad list is refused before any drive
     best = (
         checkpoint.load(best_path).get("validation") if best_path.exists() else None
     )  # a restarted evaluator keeps the bar

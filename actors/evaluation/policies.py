@@ -12,12 +12,14 @@ import torch
 from actors.controllers.kinematic import KinematicController
 from common import checkpoint
 from common.config.agent import AgentConfig, ScaleConfig
+from common.config.env import VehicleConfig
 from common.networks import make_policy
 from common.offline_policy import make_offline_policy
 
 
-def kinematic_policy():
-    controller = KinematicController()
+def kinematic_policy(vehicle: VehicleConfig | None = None):
+    """The kinematic controller for `vehicle` (LaneDrive's car if None; TORCS needs torcs_vehicle)."""
+    controller = KinematicController(vehicle)
     return lambda obs, info: controller.act(info)
 
 
