@@ -8,7 +8,6 @@ direction), one TORCS process per road, all stepped together as LaneDrive's cars
 from __future__ import annotations
 
 import dataclasses
-import math
 from typing import Callable
 
 import numpy as np
@@ -38,9 +37,10 @@ def evaluate(
     names = list(tracks or road_names(cfg, split))
     if is_torcs(cfg):
         drives = [(name, TORCS_DIRECTION) for name in names]
-        sim = _torcs_sim(cfg, names)
+        sim, horizons = _torcs_sim(cfg, names)
         try:
-            return _drive(policy, sim, drives, [{"track": n, "random_start": False} for n in names], torcs=True)
+            options = [{"track": n, "random_start": False} for n in names]
+            return _drive(policy, sim, drives, options, torcs=True, horizons=horizons)
         finally:
             sim.close()
     drives = [(name, d) for name in names for d in directions]
@@ -50,18 +50,21 @@ def evaluate(
 
 
 def _torcs_sim(cfg: EnvConfig, names: list[str]):
-    """One TORCS process per road, with a horizon that fits a lap of the longest road."""
+    """One TORCS process per road, and per road a horizon that fits its lap (spring is 22 km: 2,200 s at 10 m/s)."""
     from actors.envs.torcs.env import make_sim
     from actors.envs.torcs.sim import road_geometry
 
     sim = make_sim(cfg, len(names))
-    longest = max(road_geometry(n, sim.data_dir)[0].length for n in names)
-    lap_steps = math.ceil(LAP_MARGIN * longest / (0.5 * cfg.vehicle.v_max * 0.1))  # 0.1 s a TORCS step
-    sim.cfg = dataclasses.replace(cfg, max_steps=max(cfg.max_steps, lap_steps))  # spring is 22 km: 2,200 s at 10 m/s
-    return sim
+    lengths = np.array([road_geometry(n, sim.data_dir)[0].length for n in names])
+    slowest = 0.5 * cfg.vehicle.v_max * 0.1  # m per 0.1 s step at the slowest target speed
+    horizons = np.maximum(cfg.max_steps, np.ceil(LAP_MARGIN * lengths / slowest))
+    sim.cfg = dataclasses.replace(cfg, max_steps=int(horizons.max()))  # each drive ends at its own horizon
+    return sim, horizons
 
 
-def _drive(policy: PolicyFn, sim, drives: list[tuple[str, str]], options: list[dict], torcs: bool) -> list[dict]:
+def _drive(
+    policy: PolicyFn, sim, drives: list[tuple[str, str]], options: list[dict], torcs: bool, horizons=None
+) -> list[dict]:
     rng = np.random.default_rng(0)  # unused without random starts and lighting
     for i, opts in enumerate(options):
         sim.reset(i, rng, opts)
@@ -79,7 +82,8 @@ def _drive(policy: PolicyFn, sim, drives: list[tuple[str, str]], options: list[d
                 TRACE, (sim.reward[i], info["speed"], info["alpha"], info["beta"], info["progress"], actions[i])
             ):
                 traces[i][key].append(value)
-            running[i] = not (terminated[i] or truncated[i] or info["lap_completed"])
+            over = horizons is not None and len(traces[i]["reward"]) >= horizons[i]
+            running[i] = not (terminated[i] or truncated[i] or info["lap_completed"] or over)
     results = []
     for (_, d), info, trace in zip(drives, infos, traces):
         trace = {k: np.asarray(v, np.float32) for k, v in trace.items()}
