@@ -102,7 +102,6 @@ def _step_record(obs, info, action, next_obs, reward, terminated, truncated, nex
         "track_name": np.asarray(info["track"]),
         "episode": episode.reshape(n, 1).copy(),
         "step": step.reshape(n, 1).astype(np.int32),
-        "log_mu": np.full((n, 1), np.nan, np.float32),
     }
 
 
