@@ -106,6 +106,9 @@ class ThreadRole:
 
     def __init__(self, name: str, role: str, cfg: RunConfig, run_dir: str | Path, bus: Any) -> None:
         self.name, self.role = name, role
+        role_function(
+            role
+        )  # imported here, in the starting thread: roles' first imports of torch in parallel threads can fail
         self.stop = threading.Event()
         self.exitcode: int | None = None
         self.result: dict | None = None

@@ -117,3 +117,24 @@ def test_thread_role_reports_crash_and_clean_exit(monkeypatch, tmp_path):
         handle.start()
         handle.join(5)
     assert (clean.exitcode, clean.result, crash.exitcode) == (0, {"updates": 7}, 1)
+
+
+def test_thread_role_imports_its_module_in_the_starting_thread(monkeypatch, tmp_path):
+    # roles' first imports of torch from parallel threads can fail: the supervisor's thread imports them first
+    import sys
+    import threading
+
+    (tmp_path / "late_role.py").write_text(
+        "import threading\nIMPORTED_IN = threading.current_thread().name\ndef run(ctx):\n    return {}\n"
+    )
+    monkeypatch.syspath_prepend(str(tmp_path))
+    monkeypatch.setattr(roles, "ROLES", {"learner": RoleSpec("learner", "late_role:run", ends_run=True)})
+    cfg = compose_run([*TINY, "transport=inproc"])
+    from common.transport.inproc import Bus
+
+    handle = roles.ThreadRole("learner", "learner", cfg, tmp_path, Bus())
+    assert sys.modules["late_role"].IMPORTED_IN == threading.current_thread().name
+    handle.start()
+    handle.join(5)
+    assert handle.exitcode == 0
+    monkeypatch.delitem(sys.modules, "late_role")
