@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import multiprocessing as mp
 import queue
+import re
 import shutil
 import socket
 import subprocess
@@ -127,3 +128,50 @@ def rx_bytes(ns: str, dev: str) -> int:
         check=True,
     )
     return int(out.stdout)
+
+
+def parse_unit(path: Path) -> dict[str, dict[str, list[str]]]:
+    """systemd unit file -> {section: {key: [values]}}, continuation lines joined."""
+    sections: dict[str, dict[str, list[str]]] = {}
+    current, pending = None, ""
+    for raw in path.read_text().splitlines():
+        line = pending + raw.strip() if pending else raw.strip()
+        if line.endswith("\\"):
+            pending = line[:-1] + " "
+            continue
+        pending = ""
+        if not line or line.startswith(("#", ";")):
+            continue
+        if line.startswith("["):
+            current = sections.setdefault(line.strip("[]"), {})
+            continue
+        key, _, value = line.partition("=")
+        current.setdefault(key.strip(), []).append(value.strip())
+    return sections
+
+
+def parse_env(path: Path) -> dict[str, str]:
+    env = {}
+    for line in path.read_text().splitlines():
+        if line.strip() and not line.lstrip().startswith("#"):
+            key, _, value = line.partition("=")
+            env[key.strip()] = value.strip()
+    return env
+
+
+def expand(command: str, env: dict[str, str], instance: str = "3") -> list[str]:
+    """An Exec line as systemd runs it: %i, `$VAR` words split at spaces, `${VAR}` in place."""
+    argv = []
+    for word in command.replace("%i", instance).split():
+        if re.fullmatch(r"\$[A-Za-z_]\w*", word):
+            argv += env[word[1:]].split()
+        else:
+            argv.append(re.sub(r"\$\{(\w+)\}", lambda m: env[m.group(1)], word))
+    return argv
+
+
+UNIT_SCRIPTS = {
+    "gvf-router.service": "gvf-router",
+    "gvf-learner.service": "gvf-learner",
+    "gvf-actor@.service": "gvf-actor",
+}
