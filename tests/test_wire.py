@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import logging
-import random
 import re
 from pathlib import Path
 
@@ -14,7 +13,6 @@ import pytest
 from common import wire
 from common.wire import (
     Control,
-    EpisodeSummary,
     Limits,
     RejectCounter,
     TrackTable,
@@ -24,59 +22,7 @@ from common.wire import (
     decode,
     encode,
 )
-
-H, W = 64, 128
-
-
-def make_chunk(steps: int = 8, seed: int = 0, **overrides) -> TransitionChunk:
-    rng = np.random.default_rng(seed)
-    fields = dict(
-        actor="a0",
-        env=2,
-        episode=5,
-        seq=11,
-        policy_version=3,
-        step0=40,
-        frames=rng.integers(0, 256, (steps + 2, H, W), dtype=np.uint8),
-        speed=rng.random((steps + 1, 1), dtype=np.float32),
-        last_action=rng.uniform(-1, 1, (steps + 1, 2)).astype(np.float32),
-        action=rng.uniform(-1, 1, (steps, 2)).astype(np.float32),
-        reward=rng.standard_normal(steps).astype(np.float32),
-        terminated=np.zeros(steps, bool),
-        truncated=np.zeros(steps, bool),
-        alpha=rng.uniform(-1, 1, steps + 1).astype(np.float32),
-        beta=rng.uniform(-0.5, 0.5, steps + 1).astype(np.float32),
-    )
-    fields.update(overrides)
-    return TransitionChunk(**fields)
-
-
-def as_map(msg) -> dict:
-    return msgpack.unpackb(encode(msg), raw=False)
-
-
-def pack(m: dict) -> bytes:
-    return msgpack.packb(m, use_bin_type=True)
-
-
-def assert_kind(payload, kind: str, **kwargs) -> None:
-    with pytest.raises(WireError) as info:
-        decode(payload, **kwargs)
-    assert info.value.kind == kind, str(info.value)
-
-
-VALID = [
-    make_chunk(),
-    EpisodeSummary(actor="a1", env=0, episode=9, track="oval-3", steps=1200, episode_return=-2.5, policy_version=7),
-    Weights(
-        version=4,
-        tensors={"actor.0.weight": np.ones((3, 4), np.float32), "critic.bias": np.arange(5, dtype=np.float64)},
-        epoch=1_795_000_000_000_000_000,
-    ),
-    TrackTable(version=2, steps={"oval": 100, "hairpin": 0}),
-    Control(command="pause", reason="maintenance"),
-]
-
+from tests.wire_helpers import VALID, H, W, as_map, assert_kind, make_chunk, pack
 
 # --- round trips ---------------------------------------------------------------------------
 
@@ -320,96 +266,6 @@ def test_deeply_nested_and_odd_keys():
     assert_kind(pack(nested), "schema")
     assert_kind(pack({1: 2}), "decode")
     assert_kind(b"\x81\xa2\xff\xfe\x01", "decode")  # key that is not utf-8
-
-
-def _mutations(rng: random.Random, good: bytes) -> bytes:
-    data = bytearray(good)
-    for _ in range(rng.randint(1, 4)):
-        op = rng.randrange(4)
-        pos = rng.randrange(len(data)) if data else 0
-        if op == 0 and data:
-            data[pos] = rng.randrange(256)
-        elif op == 1:
-            data[pos:pos] = bytes(rng.randrange(256) for _ in range(rng.randint(1, 8)))
-        elif op == 2 and data:
-            del data[pos : pos + rng.randint(1, 8)]
-        else:
-            data = data[:pos]
-    return bytes(data)
-
-
-def test_fuzz_only_wire_errors():
-    rng = random.Random(1234)
-    goods = [encode(msg) for msg in VALID[1:]] + [encode(make_chunk(steps=2))]
-    kinds = set()
-    for i in range(4000):
-        if i % 4 == 0:
-            payload = bytes(rng.randrange(256) for _ in range(rng.randint(0, 64)))
-        else:
-            payload = _mutations(rng, rng.choice(goods))
-        try:
-            decode(payload)
-        except WireError as err:
-            kinds.add(err.kind)
-    assert {"decode", "schema"} <= kinds
-
-
-def _random_value(rng: random.Random):
-    return rng.choice(
-        [
-            None,
-            True,
-            -1,
-            0,
-            2**64 - 1,
-            -(2**63),
-            1.5,
-            float("nan"),
-            float("inf"),
-            "",
-            "x" * 70,
-            "a/b",
-            b"",
-            b"\x00" * 9,
-            [],
-            [0, 2**62],
-            [2**31, 2**31],
-            [-1],
-            [1.0],
-            {},
-            {"dtype": "<f4"},
-            {"dtype": "<f4", "shape": [0, 2**40], "data": b""},
-            {"a": {"b": {"c": []}}},
-        ]
-    )
-
-
-def _structural_mutation(rng: random.Random, m: dict) -> dict:
-    target = m
-    nested = [k for k, v in m.items() if isinstance(v, dict)]
-    if nested and rng.random() < 0.5:
-        target = m[rng.choice(nested)]
-        nested_inner = [k for k, v in target.items() if isinstance(v, dict)]
-        if nested_inner and rng.random() < 0.5:
-            target = target[rng.choice(nested_inner)]
-    key = rng.choice(list(target) + ["new"])
-    if rng.random() < 0.2:
-        target.pop(key, None)
-    else:
-        target[key] = _random_value(rng)
-    return m
-
-
-def test_fuzz_structure_only_wire_errors():
-    rng = random.Random(99)
-    for i in range(3000):
-        m = as_map(VALID[i % len(VALID)] if i % 2 else make_chunk(steps=2))
-        for _ in range(rng.randint(1, 3)):
-            m = _structural_mutation(rng, m)
-        try:
-            decode(pack(m))
-        except WireError:
-            pass
 
 
 def test_reject_counter_counts_and_logs_once_per_kind(caplog):
