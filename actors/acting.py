@@ -25,7 +25,9 @@ BEHAVIOUR = "behaviour."  # prefix of the discriminator's tensors in a weights m
 
 
 def _tensors(arrays: dict) -> dict[str, torch.Tensor]:
-    return {k: torch.from_numpy(np.array(v, copy=True)) for k, v in arrays.items()}
+    return {
+        k: torch.from_numpy(np.array(v, dtype=np.float32)) for k, v in arrays.items()
+    }  # float16 on the wire: acts in float32
 
 
 class Acting:

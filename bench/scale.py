@@ -37,7 +37,8 @@ missing or dropped and p99 <= 100 ms (DESIGN.md asks it of N = 256).
 
 Usage: python bench/scale.py [--actors 1 16 64 256] [--topology router mesh] [--rate 1]
        [--seconds 10] [--warmup 2] [--broadcasts 20] [--broadcast-every 0.5] [--per-process 32]
-       [--memory-minutes 0] [--memory-every 10] [hydra overrides, e.g. learner.ingest_batch=16]
+       [--memory-minutes 0] [--memory-every 10] [hydra overrides, e.g. learner.ingest_batch=16;
+       learner.weights_dtype=float16 broadcasts half the bytes]
 The last line printed is one JSON object: {"router": {N: figures}, "mesh": {N: ...}, "memory":
 {topology: ...} (with --memory-minutes), "params": {...}}; one line per N goes to stderr as it ends.
 """
@@ -61,6 +62,8 @@ from pathlib import Path
 _HERE = Path(__file__).resolve().parent
 sys.path[:] = [p for p in sys.path if Path(p or ".").resolve() != _HERE]
 sys.path.insert(0, str(_HERE.parent))
+
+import numpy as np  # noqa: E402
 
 from bench.scale_procs import (  # noqa: E402
     MESH_CONFIGS,
@@ -100,8 +103,12 @@ class Learner:
         self.version = 0
         # the Weights of each phase: the acting policy, and the discriminator where actors need it
         core = self.service.core
+        dtype = np.dtype(cfg.learner.weights_dtype)  # learner.weights_dtype=float16: half the bytes
         self.tensors = {
-            log_mu: {k: v.detach().cpu().numpy() for k, v in core.broadcast_state_dict(with_behaviour=log_mu).items()}
+            log_mu: {
+                k: v.detach().cpu().numpy().astype(dtype)
+                for k, v in core.broadcast_state_dict(with_behaviour=log_mu).items()
+            }
             for log_mu in (False, True)
         }
 
@@ -435,6 +442,7 @@ def main(argv: list[str] | None = None) -> dict:
         "scale": cfg.scale.name,
         "agent": cfg.agent.name,
         "torch_threads": cfg.learner.torch_threads,
+        "weights_dtype": cfg.learner.weights_dtype,
         "latency_p99_target_ms": LATENCY_P99_TARGET_MS,
         "cpus": os.cpu_count(),
         "overrides": args.overrides,

@@ -75,8 +75,8 @@ def check_weights(weights: Weights, own: dict) -> None:
         got = np.asarray(weights.tensors[name])
         if tuple(got.shape) != tuple(tensor.shape):
             raise WireError("weights", f"{name}: shape {tuple(got.shape)}, this policy has {tuple(tensor.shape)}")
-        if got.dtype != np.float32:
-            raise WireError("weights", f"{name}: dtype {got.dtype}, expected float32")
+        if got.dtype not in (np.float32, np.float16):  # float16: learner.weights_dtype, half the bytes
+            raise WireError("weights", f"{name}: dtype {got.dtype}, expected float32 or float16")
         if not np.isfinite(got).all():
             raise WireError("weights", f"{name}: non-finite values")
 

@@ -120,7 +120,8 @@ class LearnerService:
         """Broadcast (and serve) the acting weights; non-finite ones are never sent: the learner
         stops with an error instead, and a supervisor resumes it from its last good checkpoint."""
         state = self.core.broadcast_state_dict(with_behaviour=self.lc.rho_at == "actor")
-        tensors = {name: v.detach().cpu().numpy() for name, v in state.items()}
+        dtype = np.dtype(self.lc.weights_dtype)
+        tensors = {name: v.detach().cpu().numpy().astype(dtype, copy=False) for name, v in state.items()}
         if not all(np.isfinite(t).all() for t in tensors.values()):
             raise FloatingPointError(f"non-finite acting weights at update {self.core.updates}: not published")
         payload = wire.encode(wire.Weights(self.core.updates, tensors, epoch=self.epoch))

@@ -46,6 +46,7 @@ def test_bad_values_are_refused_naming_the_field(override, field):
         ("scale.lr_actor_final=0", "lr_actor_final"),
         ("scale.crash_steps=0", "crash_steps"),
         ("learner.rho_at=router", "rho_at"),
+        ("learner.weights_dtype=int8", "weights_dtype"),
         ("agent=ddpg_image learner.rho_at=actor", "rho_at"),
     ],
 )

@@ -96,6 +96,8 @@ class LearnerConfig:
     rho_at: str = "learner"
     """Where log mu_hat of rho = tau / mu_hat is computed at insert: 'learner' (Algorithm 1), or 'actor':
     the weights carry the discriminator and actors send log mu_hat in each chunk (GVF variants only)."""
+    weights_dtype: str = "float32"
+    """Precision of the broadcast weights: 'float32', or 'float16' (half the bytes to every actor; actors act in float32)."""
 
 
 @dataclass
@@ -213,6 +215,7 @@ def register() -> None:
 
 
 RHO_AT = ("learner", "actor")
+WEIGHTS_DTYPES = ("float32", "float16")
 
 
 def to_objects(cfg: Any) -> tuple[RunConfig, AgentConfig, ScaleConfig]:
@@ -228,6 +231,8 @@ def to_objects(cfg: Any) -> tuple[RunConfig, AgentConfig, ScaleConfig]:
     check_agent(run.agent)
     if run.learner.rho_at not in RHO_AT:
         raise ValueError(f"learner.rho_at must be one of {RHO_AT}, got {run.learner.rho_at!r}")
+    if run.learner.weights_dtype not in WEIGHTS_DTYPES:
+        raise ValueError(f"learner.weights_dtype must be one of {WEIGHTS_DTYPES}, got {run.learner.weights_dtype!r}")
     check_offline(run)
     if run.learner.rho_at == "actor" and run.agent.representation != "predictive":
         raise ValueError(f"learner.rho_at=actor needs a GVF variant, agent {run.agent.name!r} has no discriminator")
