@@ -16,6 +16,18 @@ Rights (router's view: ingress = from the client, egress = to it), all under gvf
 - operator (gvf-operator, gvfctl): put control; watch and list every token; gvfctl ping's keys.
 Anything else (another actor's transitions, weights from an actor, control from anyone but the
 operator, a client without a certificate of the run's CA) is refused by the router.
+
+A router mesh (one router per site, deploy/README.md "Router mesh") with the same rights: a router
+is trusted with exactly the rights of the identities behind it (gvf-router-SITE).
+- router A (the learner's site) lists each other site and its actors; site B's router may do what
+  those actors may do, and no more (it cannot forward weights, control, or a chunk in another
+  site's actor's name):
+    python deploy/make_acl.py --run exp1 --actors a0 --site b=b-a0,b-a1 --router-cert router-a > router-a.json5
+- router B lists its own actors (each still limited to its own name) and its upstream router A,
+  which may do what the learner, the evaluator and the operator may do:
+    python deploy/make_acl.py --run exp1 --actors b-a0 b-a1 --upstream a --router-cert router-b > router-b.json5
+  and connects to A with `transport.router_connect=[tls/ROUTER_A_HOST:7447]` (its certificate router-b.pem).
+A router of the run's CA that A does not list (or a client posing as one) is refused everything.
 """
 
 from __future__ import annotations
@@ -37,8 +49,10 @@ def rule(rid: str, messages: list[str], flow: str, keys: list[str]) -> dict:
     return {"id": rid, "permission": "allow", "messages": messages, "flows": [flow], "key_exprs": keys}
 
 
-def acl(run: str, actors: list[str]) -> dict:
-    """The access_control block for run `run` and these actor names (see the module docstring)."""
+def acl(run: str, actors: list[str], sites: dict[str, list[str]] | None = None, upstream: str | None = None) -> dict:
+    """The access_control block for run `run` and these actor names (see the module docstring); `sites`
+    (site -> its actors) are the other routers of a mesh this one serves, `upstream` the site of the
+    router this one connects to (the learner's)."""
     root = Keys(run).root
     k = {name: f"{root}/{r.key}" for name, r in ROUTES.items()}
     to_actors = [f"{root}/{name}" for name in ("weights", "tracks", "flow", "control")]
@@ -86,35 +100,56 @@ def acl(run: str, actors: list[str]) -> dict:
             "rules": [r["id"] for r in rules if r["id"].startswith("operator-")],
         },
     ]
-    for name in actors:
+    shared = ["actor-receive", "actor-delivered", "actor-matched"]
+
+    def actor_rules(name: str) -> list[str]:
         check_name(name, "actor")
-        own = [k["transitions"].replace("<actor>", name), k["episodes"].replace("<actor>", name)]
-        rules.append(rule(f"actor-{name}-send", ["put"], "ingress", own))
-        rules.append(rule(f"actor-{name}-token", ["liveliness_token"], "ingress", [f"{root}/alive/actor/{name}"]))
+        if not any(r["id"] == f"actor-{name}-send" for r in rules):
+            own = [k["transitions"].replace("<actor>", name), k["episodes"].replace("<actor>", name)]
+            rules.append(rule(f"actor-{name}-send", ["put"], "ingress", own))
+            rules.append(rule(f"actor-{name}-token", ["liveliness_token"], "ingress", [f"{root}/alive/actor/{name}"]))
+        return [f"actor-{name}-send", f"actor-{name}-token"]
+
+    for name in actors:
         subjects.append({"id": f"actor-{name}", "cert_common_names": [f"gvf-actor-{name}"]})
+        policies.append({"id": f"actor-{name}", "subjects": [f"actor-{name}"], "rules": shared + actor_rules(name)})
+    # a mesh: a neighbour router may do what the identities behind it may do (routers forward their declarations)
+    for site, names in (sites or {}).items():
+        check_name(site, "site")
+        if not names:
+            raise ValueError(f"site {site!r} lists no actors")
+        subjects.append({"id": f"router-{site}", "cert_common_names": [f"gvf-router-{site}"]})
+        own = [r for name in names for r in actor_rules(name)]
+        # what a client never needs and a router does: the learner's queryable, declared onwards to the far site
+        rules.append(rule(f"router-{site}-served", ["declare_queryable"], "egress", [f"{root}/weights"]))
         policies.append(
-            {
-                "id": f"actor-{name}",
-                "subjects": [f"actor-{name}"],
-                "rules": [
-                    "actor-receive",
-                    "actor-delivered",
-                    "actor-matched",
-                    f"actor-{name}-send",
-                    f"actor-{name}-token",
-                ],
-            }
+            {"id": f"router-{site}", "subjects": [f"router-{site}"], "rules": shared + own + [f"router-{site}-served"]}
         )
+    if upstream is not None:
+        check_name(upstream, "site")
+        subjects.append({"id": "upstream", "cert_common_names": [f"gvf-router-{upstream}"]})
+        behind = [r["id"] for r in rules if r["id"].split("-")[0] in ("learner", "evaluator", "operator")]
+        policies.append({"id": "upstream", "subjects": ["upstream"], "rules": behind})
     return {"enabled": True, "default_permission": "deny", "rules": rules, "subjects": subjects, "policies": policies}
 
 
-def router_config(run: str, actors: list[str], certs: str) -> dict:
-    """A whole router config: TLS only, mutual TLS with the run's CA, and `acl(run, actors)`."""
+def router_config(
+    run: str,
+    actors: list[str],
+    certs: str,
+    sites: dict[str, list[str]] | None = None,
+    upstream: str | None = None,
+    cert: str = "router",
+) -> dict:
+    """A whole router config: TLS only, mutual TLS with the run's CA, and `acl(run, actors, sites, upstream)`;
+    `cert` names its certificate files (router-SITE in a mesh: the name its neighbours know it by)."""
     c = Path(certs)
+    # in a mesh, no gossip: the links are exactly the configured ones (as deploy/zenoh/router-mesh-*.json5)
+    scouting = {"multicast": {"enabled": False}, **({"gossip": {"enabled": False}} if sites or upstream else {})}
     return {
         "mode": "router",
         "listen": {"endpoints": ["tls/0.0.0.0:7447"]},
-        "scouting": {"multicast": {"enabled": False}},
+        "scouting": scouting,
         "transport": {
             "unicast": {"max_sessions": 1000},
             "link": {
@@ -122,16 +157,16 @@ def router_config(run: str, actors: list[str], certs: str) -> dict:
                 "rx": {"max_message_size": 67108864},
                 "tls": {
                     "root_ca_certificate": str(c / "ca.pem"),
-                    "listen_private_key": str(c / "router.key"),
-                    "listen_certificate": str(c / "router.pem"),
+                    "listen_private_key": str(c / f"{cert}.key"),
+                    "listen_certificate": str(c / f"{cert}.pem"),
                     "enable_mtls": True,  # no certificate of the run's CA: no session
-                    "connect_private_key": str(c / "router.key"),
-                    "connect_certificate": str(c / "router.pem"),
+                    "connect_private_key": str(c / f"{cert}.key"),
+                    "connect_certificate": str(c / f"{cert}.pem"),
                     "verify_name_on_connect": True,
                 },
             },
         },
-        "access_control": acl(run, actors),
+        "access_control": acl(run, actors, sites, upstream),
     }
 
 
@@ -162,16 +197,33 @@ def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--run", help="the run name (key prefix gvf/<run>/): writes the router's config")
     parser.add_argument("--actors", nargs="+", default=[], help="every actor name the run may have")
+    parser.add_argument(
+        "--site", action="append", default=[], metavar="SITE=A1,A2", help="a mesh: another site's router and its actors"
+    )
+    parser.add_argument("--upstream", metavar="SITE", help="a mesh: the site of the router this one connects to")
+    parser.add_argument(
+        "--router-cert", default="router", help="the router's certificate files (router-SITE in a mesh)"
+    )
     parser.add_argument("--client", help="instead, a client's config: learner, evaluator, operator or actor-NAME")
     parser.add_argument("--certs", default="/etc/gvf/tls", help="folder of the certificates (make_test_certs.sh)")
     args = parser.parse_args(argv)
     if args.client:
         print(json.dumps(client_config(args.client, args.certs), indent=2))
         return 0
-    if not args.run or not args.actors:
-        parser.error("the router's config needs --run and --actors (or give --client)")
+    if not args.run or not (args.actors or args.site):
+        parser.error("the router's config needs --run and --actors or --site (or give --client)")
     check_name(args.run, "run")
-    print(json.dumps(router_config(args.run, args.actors, args.certs), indent=2))
+    sites = {}
+    for entry in args.site:
+        site, _, names = entry.partition("=")
+        if not site or not names:
+            parser.error(f"--site takes SITE=ACTOR1,ACTOR2, got {entry!r}")
+        sites[site] = names.split(",")
+    try:
+        config = router_config(args.run, args.actors, args.certs, sites, args.upstream, args.router_cert)
+    except ValueError as err:
+        parser.error(str(err))
+    print(json.dumps(config, indent=2))
     return 0
 
 

@@ -12,8 +12,10 @@
 #                                  (deploy/make_acl.py) grants rights to
 #   OUTDIR/actor-NAME.pem, .key    one per actor NAME in $ACTORS (default "actor-0 actor-1"), common
 #                                  name gvf-actor-NAME: an actor may publish only under its own name
+#   OUTDIR/router-SITE.pem, .key   one per SITE in $ROUTERS (default none): the routers of a mesh, common
+#                                  name gvf-router-SITE, the router's names (make_acl.py --site, --upstream)
 #
-# Usage: [ACTORS="a0 a1 ..."] deploy/make_test_certs.sh OUTDIR [NAME ...]
+# Usage: [ACTORS="a0 a1 ..."] [ROUTERS="a b ..."] deploy/make_test_certs.sh OUTDIR [NAME ...]
 #   e.g. ACTORS="h1-a0 h1-a1" deploy/make_test_certs.sh /etc/gvf/tls router.example.org 192.0.2.1
 #
 # NAME is how the learner and actors reach the router (the host of `transport.connect=[tls/NAME:7447]`):
@@ -90,6 +92,10 @@ actors=${ACTORS:-actor-0 actor-1}
 for name in $actors; do
     [[ $name =~ ^[A-Za-z0-9_.-]{1,64}$ ]] || { echo "$0: bad actor name $name" >&2; exit 2; }
     sign "actor-$name" "gvf-actor-$name" "clientAuth" "DNS:gvf-actor-$name"
+done
+for site in ${ROUTERS:-}; do
+    [[ $site =~ ^[A-Za-z0-9_.-]{1,64}$ ]] || { echo "$0: bad router site $site" >&2; exit 2; }
+    sign "router-$site" "gvf-router-$site" "serverAuth,clientAuth" "$san"
 done
 chmod 644 "$out"/*.pem
 

@@ -57,9 +57,14 @@ def _router(cfg: TransportConfig, ready, stop) -> None:
 
 
 @contextmanager
-def router_process(config_file: Path | None, endpoints: list[str]):
+def router_process(config_file: Path | None, endpoints: list[str], connect: list[str] | None = None):
+    """A router in a spawned process listening on `endpoints` (and joined to the routers at `connect`)."""
     ready, stop = CTX.Event(), CTX.Event()
-    cfg = TransportConfig(router_listen=endpoints, zenoh_config_file=str(config_file) if config_file else None)
+    cfg = TransportConfig(
+        router_listen=endpoints,
+        router_connect=connect or [],
+        zenoh_config_file=str(config_file) if config_file else None,
+    )
     proc = CTX.Process(target=_router, args=(cfg, ready, stop), daemon=True)
     proc.start()
     try:

@@ -1,0 +1,175 @@
+"""An access-controlled router mesh (deploy/make_acl.py --site / --upstream) on 127.0.0.1: router A
+(the learner's site) and router B (a site of actors) joined over mutual TLS, each with default-deny
+rules. B's actors train A's learner and receive its weights, control and query replies; an
+intruder at B holding an actor's identity still reaches only its own keys; a router of the run's CA
+that A does not list forwards nothing."""
+
+from __future__ import annotations
+
+import json
+import queue
+import subprocess
+import time
+from pathlib import Path
+
+import pytest
+import zenoh
+
+from common import wire
+from common.keys import Keys
+from tests.deploy_helpers import DEPLOY, PY, client, free_port, router_process
+from tests.helpers import TINY, script, stop
+
+RUN = "meshacl"
+FAR = ["b0", "b1"]
+
+
+@pytest.fixture(scope="module")
+def mesh_files(tmp_path_factory):
+    """Certificates (routers a, b and c; actors b0, b1) and every router's and client's config file."""
+    import shutil
+
+    if shutil.which("openssl") is None:
+        pytest.skip("openssl not installed: cannot make test certificates (apt-get install openssl)")
+    out = tmp_path_factory.mktemp("meshacl")
+    certs = out / "certs"
+    env = {"ACTORS": " ".join(FAR), "ROUTERS": "a b c", "PATH": "/usr/bin:/bin"}
+    subprocess.run(
+        ["bash", str(DEPLOY / "make_test_certs.sh"), str(certs)], check=True, capture_output=True, env=env, timeout=60
+    )
+
+    def write(name: str, *args: str) -> Path:
+        text = subprocess.run(
+            [PY, str(DEPLOY / "make_acl.py"), *args, "--certs", str(certs)],
+            check=True,
+            capture_output=True,
+            text=True,
+            timeout=60,
+        ).stdout
+        path = out / f"{name}.json5"
+        path.write_text(text)
+        return path
+
+    far = ["--actors", *FAR, "--upstream", "a"]
+    files = {
+        "router-a": write("router-a", "--run", RUN, "--site", f"b={','.join(FAR)}", "--router-cert", "router-a"),
+        "router-b": write("router-b", "--run", RUN, *far, "--router-cert", "router-b"),
+        "router-c": write("router-c", "--run", RUN, *far, "--router-cert", "router-c"),  # not in A's list
+    }
+    for identity in ("learner", "operator", *(f"actor-{a}" for a in FAR)):
+        files[identity] = write(identity, "--client", identity)
+    return files
+
+
+def _collect(session: zenoh.Session, key: str) -> queue.Queue:
+    got: queue.Queue = queue.Queue()
+    session.declare_subscriber(key, lambda s: got.put((str(s.key_expr), s.payload.to_bytes())))
+    return got
+
+
+def _drain(q: queue.Queue) -> list:
+    out = []
+    while not q.empty():
+        out.append(q.get())
+    return out
+
+
+def test_the_far_site_reaches_only_what_its_actors_may(mesh_files):
+    keys, ep_a, ep_b = Keys(RUN), f"tls/127.0.0.1:{free_port()}", f"tls/127.0.0.1:{free_port()}"
+    with router_process(mesh_files["router-a"], [ep_a]), router_process(mesh_files["router-b"], [ep_b], [ep_a]):
+        learner, operator = client(mesh_files["learner"], ep_a), client(mesh_files["operator"], ep_a)
+        honest, intruder = client(mesh_files["actor-b0"], ep_b), client(mesh_files["actor-b1"], ep_b)
+        try:
+            chunks = _collect(learner, keys.all_transitions)
+            control = _collect(learner, keys.control)
+            to_actor = {name: _collect(honest, getattr(keys, name)) for name in ("weights", "flow", "control")}
+            learner.declare_queryable(keys.weights, lambda q: q.reply(keys.weights, b"served"))
+            token = honest.liveliness().declare_token(keys.alive("actor", "b0"))
+            time.sleep(2.0)  # the routers link and learn the subscriptions
+            honest.put(keys.transitions("b0"), b"own")
+            intruder.put(keys.transitions("b1"), b"its own")
+            for key in (keys.transitions("b0"), keys.weights, keys.flow, keys.control):
+                intruder.put(key, b"forged")
+            operator.put(keys.control, wire.encode(wire.Control("stop")))
+            learner.put(keys.weights, b"real")
+            time.sleep(1.5)
+            assert sorted(_drain(chunks)) == [(keys.transitions("b0"), b"own"), (keys.transitions("b1"), b"its own")]
+            assert [p for _, p in _drain(control)] == [wire.encode(wire.Control("stop"))]  # the operator's only
+            assert [p for _, p in _drain(to_actor["weights"])] == [b"real"] and _drain(to_actor["flow"]) == []
+            assert [p for _, p in _drain(to_actor["control"])] == [wire.encode(wire.Control("stop"))]
+            assert [r.ok.payload.to_bytes() for r in honest.get(keys.weights, timeout=3) if r.ok] == [b"served"]
+            alive = [str(r.ok.key_expr) for r in learner.liveliness().get(keys.all_alive("actor"), timeout=2) if r.ok]
+            assert alive == [keys.alive("actor", "b0")]  # the far actor's token reaches the learner's site
+            token.undeclare()
+        finally:
+            for s in (learner, operator, honest, intruder):
+                s.close()
+
+
+def test_a_router_that_router_a_does_not_list_forwards_nothing(mesh_files):
+    keys, ep_a, ep_c = Keys(RUN), f"tls/127.0.0.1:{free_port()}", f"tls/127.0.0.1:{free_port()}"
+    with router_process(mesh_files["router-a"], [ep_a]), router_process(mesh_files["router-c"], [ep_c], [ep_a]):
+        learner, actor = client(mesh_files["learner"], ep_a), client(mesh_files["actor-b0"], ep_c)
+        try:
+            chunks = _collect(learner, keys.all_transitions)
+            weights = _collect(actor, keys.weights)
+            time.sleep(2.0)
+            actor.put(keys.transitions("b0"), b"through a rogue router")
+            learner.put(keys.weights, b"real")
+            time.sleep(1.5)
+            assert _drain(chunks) == [] and _drain(weights) == []
+        finally:
+            learner.close()
+            actor.close()
+
+
+@pytest.mark.slow
+def test_a_real_actor_at_the_far_site_trains_the_learner_through_the_secured_mesh(mesh_files, tmp_path):
+    ep_a, ep_b = f"tls/127.0.0.1:{free_port()}", f"tls/127.0.0.1:{free_port()}"
+    common = [*TINY, f"run={RUN}"]
+    with router_process(mesh_files["router-a"], [ep_a]), router_process(mesh_files["router-b"], [ep_b], [ep_a]):
+        learner = script(
+            "gvf-learner",
+            [
+                *common,
+                f"transport.connect=[{ep_a}]",
+                f"transport.zenoh_config_file={mesh_files['learner']}",
+                f"hydra.run.dir={tmp_path}/learner",
+            ],
+            tmp_path / "learner.log",
+        )
+        actor = script(
+            "gvf-actor",
+            [
+                *common,
+                f"transport.connect=[{ep_b}]",
+                f"transport.zenoh_config_file={mesh_files['actor-b0']}",
+                "actor.name=b0",
+                f"hydra.run.dir={tmp_path}/actor",
+            ],
+            tmp_path / "actor.log",
+        )
+        try:
+            progress = tmp_path / "learner" / "progress.json"
+            deadline = time.monotonic() + 240
+            state: dict = {}
+            while time.monotonic() < deadline and state.get("updates", 0) == 0:
+                time.sleep(0.5)
+                state = json.loads(progress.read_text() or "{}") if progress.exists() else {}
+            assert state.get("updates", 0) > 0, (tmp_path / "actor.log").read_text()[-2000:]
+            assert state["actors_seen"] == ["b0"] and state["rejected"] == 0 and state["lost_chunks"] == 0
+            assert learner.poll() is None and actor.poll() is None
+        finally:
+            stop(actor)
+            stop(learner)
+
+
+@pytest.mark.parametrize("args", [["--site", "b"], ["--site", "b="], ["--site", "b/x=a0"], ["--upstream", "a/b"]])
+def test_a_bad_site_is_refused_naming_it(args):
+    done = subprocess.run(
+        [PY, str(DEPLOY / "make_acl.py"), "--run", RUN, "--actors", "a0", *args],
+        capture_output=True,
+        text=True,
+        timeout=60,
+    )
+    assert done.returncode == 2 and ("--site" in done.stderr or "site" in done.stderr), done.stderr
