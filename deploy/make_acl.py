@@ -101,13 +101,12 @@ def acl(run: str, actors: list[str], sites: dict[str, list[str]] | None = None, 
         },
     ]
     shared = ["actor-receive", "actor-delivered", "actor-matched"]
+    check_mesh(actors, sites or {}, upstream)
 
     def actor_rules(name: str) -> list[str]:
-        check_name(name, "actor")
-        if not any(r["id"] == f"actor-{name}-send" for r in rules):
-            own = [k["transitions"].replace("<actor>", name), k["episodes"].replace("<actor>", name)]
-            rules.append(rule(f"actor-{name}-send", ["put"], "ingress", own))
-            rules.append(rule(f"actor-{name}-token", ["liveliness_token"], "ingress", [f"{root}/alive/actor/{name}"]))
+        own = [k["transitions"].replace("<actor>", name), k["episodes"].replace("<actor>", name)]
+        rules.append(rule(f"actor-{name}-send", ["put"], "ingress", own))
+        rules.append(rule(f"actor-{name}-token", ["liveliness_token"], "ingress", [f"{root}/alive/actor/{name}"]))
         return [f"actor-{name}-send", f"actor-{name}-token"]
 
     for name in actors:
@@ -115,9 +114,6 @@ def acl(run: str, actors: list[str], sites: dict[str, list[str]] | None = None, 
         policies.append({"id": f"actor-{name}", "subjects": [f"actor-{name}"], "rules": shared + actor_rules(name)})
     # a mesh: a neighbour router may do what the identities behind it may do (routers forward their declarations)
     for site, names in (sites or {}).items():
-        check_name(site, "site")
-        if not names:
-            raise ValueError(f"site {site!r} lists no actors")
         subjects.append({"id": f"router-{site}", "cert_common_names": [f"gvf-router-{site}"]})
         own = [r for name in names for r in actor_rules(name)]
         # what a client never needs and a router does: the learner's queryable, declared onwards to the far site
@@ -126,11 +122,31 @@ def acl(run: str, actors: list[str], sites: dict[str, list[str]] | None = None, 
             {"id": f"router-{site}", "subjects": [f"router-{site}"], "rules": shared + own + [f"router-{site}-served"]}
         )
     if upstream is not None:
-        check_name(upstream, "site")
         subjects.append({"id": "upstream", "cert_common_names": [f"gvf-router-{upstream}"]})
         behind = [r["id"] for r in rules if r["id"].split("-")[0] in ("learner", "evaluator", "operator")]
         policies.append({"id": "upstream", "subjects": ["upstream"], "rules": behind})
     return {"enabled": True, "default_permission": "deny", "rules": rules, "subjects": subjects, "policies": policies}
+
+
+def check_mesh(actors: list[str], sites: dict[str, list[str]], upstream: str | None) -> None:
+    """Refuse names that would give one identity's rights to two holders: an actor named twice
+    (locally or at two sites), a site without actors, the upstream router also listed as a site."""
+    seen: dict[str, str] = {}
+    for where, names in [("--actors", actors), *((f"--site {site}", names) for site, names in sites.items())]:
+        if where != "--actors":
+            check_name(where.split()[1], "site")
+            if not names:
+                raise ValueError(f"{where} lists no actors")
+        for name in names:
+            check_name(name, "actor")
+            if name in seen:
+                places = f"twice in {where}" if seen[name] == where else f"in {seen[name]} and {where}"
+                raise ValueError(f"actor {name!r} is {places}: each actor is at one place")
+            seen[name] = where
+    if upstream is not None:
+        check_name(upstream, "site")
+        if upstream in sites:
+            raise ValueError(f"site {upstream!r} is both --upstream and --site")
 
 
 def router_config(
@@ -218,6 +234,8 @@ def main(argv: list[str] | None = None) -> int:
         site, _, names = entry.partition("=")
         if not site or not names:
             parser.error(f"--site takes SITE=ACTOR1,ACTOR2, got {entry!r}")
+        if site in sites:
+            parser.error(f"--site {site} is given twice")
         sites[site] = names.split(",")
     try:
         config = router_config(args.run, args.actors, args.certs, sites, args.upstream, args.router_cert)

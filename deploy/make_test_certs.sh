@@ -13,9 +13,12 @@
 #   OUTDIR/actor-NAME.pem, .key    one per actor NAME in $ACTORS (default "actor-0 actor-1"), common
 #                                  name gvf-actor-NAME: an actor may publish only under its own name
 #   OUTDIR/router-SITE.pem, .key   one per SITE in $ROUTERS (default none): the routers of a mesh, common
-#                                  name gvf-router-SITE, the router's names (make_acl.py --site, --upstream)
+#                                  name gvf-router-SITE (make_acl.py --site, --upstream); subjectAltName the
+#                                  loopback names and the site's own hosts: ROUTERS="a=hostA b=hostB,192.0.2.7"
+#                                  (a site given without hosts gets the NAMEs), so that one site's router
+#                                  key does not pass as another site's router
 #
-# Usage: [ACTORS="a0 a1 ..."] [ROUTERS="a b ..."] deploy/make_test_certs.sh OUTDIR [NAME ...]
+# Usage: [ACTORS="a0 a1 ..."] [ROUTERS="a[=HOST,...] b ..."] deploy/make_test_certs.sh OUTDIR [NAME ...]
 #   e.g. ACTORS="h1-a0 h1-a1" deploy/make_test_certs.sh /etc/gvf/tls router.example.org 192.0.2.1
 #
 # NAME is how the learner and actors reach the router (the host of `transport.connect=[tls/NAME:7447]`):
@@ -38,15 +41,19 @@ umask 077  # private keys readable by their owner only
 tmp=$(mktemp -d)
 trap 'rm -rf "$tmp"' EXIT
 
-# subjectAltName of the router: always the loopback names, plus each NAME as an IP or a DNS entry
-san="DNS:localhost,IP:127.0.0.1"
-for name in "$@"; do
-    if [[ $name =~ ^[0-9]+\.[0-9]+\.[0-9]+\.[0-9]+$ || $name == *:* ]]; then
-        san+=",IP:$name"
-    else
-        san+=",DNS:$name"
-    fi
-done
+# subjectAltName of a router: always the loopback names, plus each given name as an IP or a DNS entry
+san_of() {
+    local san="DNS:localhost,IP:127.0.0.1" name
+    for name in "$@"; do
+        if [[ $name =~ ^[0-9]+\.[0-9]+\.[0-9]+\.[0-9]+$ || $name == *:* ]]; then
+            san+=",IP:$name"
+        else
+            san+=",DNS:$name"
+        fi
+    done
+    echo "$san"
+}
+san=$(san_of "$@")
 
 newkey() { openssl genpkey -algorithm EC -pkeyopt ec_paramgen_curve:P-256 -out "$1" 2>/dev/null; }
 serial() { echo "0x$(openssl rand -hex 16)"; }
@@ -93,9 +100,15 @@ for name in $actors; do
     [[ $name =~ ^[A-Za-z0-9_.-]{1,64}$ ]] || { echo "$0: bad actor name $name" >&2; exit 2; }
     sign "actor-$name" "gvf-actor-$name" "clientAuth" "DNS:gvf-actor-$name"
 done
-for site in ${ROUTERS:-}; do
+for entry in ${ROUTERS:-}; do
+    site=${entry%%=*}
     [[ $site =~ ^[A-Za-z0-9_.-]{1,64}$ ]] || { echo "$0: bad router site $site" >&2; exit 2; }
-    sign "router-$site" "gvf-router-$site" "serverAuth,clientAuth" "$san"
+    if [[ $entry == *=* ]]; then
+        IFS=, read -r -a hosts <<<"${entry#*=}"
+        sign "router-$site" "gvf-router-$site" "serverAuth,clientAuth" "$(san_of "${hosts[@]}")"
+    else
+        sign "router-$site" "gvf-router-$site" "serverAuth,clientAuth" "$san"
+    fi
 done
 chmod 644 "$out"/*.pem
 

@@ -40,6 +40,14 @@ def resolve_device(name: str) -> str:
     return name
 
 
+def narrowed(t: np.ndarray, dtype: str) -> np.ndarray:
+    """`t` in the broadcast precision `dtype` (learner.weights_dtype); a tensor beyond float16's
+    range stays float32 (receivers take either) rather than turning into inf."""
+    if dtype == "float16" and np.abs(t).max(initial=0.0) <= np.finfo(np.float16).max:
+        return t.astype(np.float16)
+    return t
+
+
 class LearnerService:
     """One learner of one run; `run(stop)` until stopped or `learner.max_updates`."""
 
@@ -120,10 +128,10 @@ class LearnerService:
         """Broadcast (and serve) the acting weights; non-finite ones are never sent: the learner
         stops with an error instead, and a supervisor resumes it from its last good checkpoint."""
         state = self.core.broadcast_state_dict(with_behaviour=self.lc.rho_at == "actor")
-        dtype = np.dtype(self.lc.weights_dtype)
-        tensors = {name: v.detach().cpu().numpy().astype(dtype, copy=False) for name, v in state.items()}
+        tensors = {name: v.detach().cpu().numpy() for name, v in state.items()}
         if not all(np.isfinite(t).all() for t in tensors.values()):
             raise FloatingPointError(f"non-finite acting weights at update {self.core.updates}: not published")
+        tensors = {name: narrowed(t, self.lc.weights_dtype) for name, t in tensors.items()}
         payload = wire.encode(wire.Weights(self.core.updates, tensors, epoch=self.epoch))
         self.weights_srv.update(payload)
         self.weights_out.put(payload)

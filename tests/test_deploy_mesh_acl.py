@@ -1,8 +1,9 @@
 """An access-controlled router mesh (deploy/make_acl.py --site / --upstream) on 127.0.0.1: router A
 (the learner's site) and router B (a site of actors) joined over mutual TLS, each with default-deny
 rules. B's actors train A's learner and receive its weights, control and query replies; an
-intruder at B holding an actor's identity still reaches only its own keys; a router of the run's CA
-that A does not list forwards nothing."""
+intruder at B holding an actor's identity still reaches only its own keys; router A alone stops a
+router B without any rules from forwarding more than B's actors may send; a router of the run's
+CA that A does not list forwards nothing, beside a listed one that does."""
 
 from __future__ import annotations
 
@@ -33,7 +34,7 @@ def mesh_files(tmp_path_factory):
         pytest.skip("openssl not installed: cannot make test certificates (apt-get install openssl)")
     out = tmp_path_factory.mktemp("meshacl")
     certs = out / "certs"
-    env = {"ACTORS": " ".join(FAR), "ROUTERS": "a b c", "PATH": "/usr/bin:/bin"}
+    env = {"ACTORS": " ".join(["a0", *FAR]), "ROUTERS": "a b c", "PATH": "/usr/bin:/bin"}
     subprocess.run(
         ["bash", str(DEPLOY / "make_test_certs.sh"), str(certs)], check=True, capture_output=True, env=env, timeout=60
     )
@@ -52,11 +53,17 @@ def mesh_files(tmp_path_factory):
 
     far = ["--actors", *FAR, "--upstream", "a"]
     files = {
-        "router-a": write("router-a", "--run", RUN, "--site", f"b={','.join(FAR)}", "--router-cert", "router-a"),
+        "router-a": write(
+            "router-a", "--run", RUN, "--actors", "a0", "--site", f"b={','.join(FAR)}", "--router-cert", "router-a"
+        ),
         "router-b": write("router-b", "--run", RUN, *far, "--router-cert", "router-b"),
         "router-c": write("router-c", "--run", RUN, *far, "--router-cert", "router-c"),  # not in A's list
     }
-    for identity in ("learner", "operator", *(f"actor-{a}" for a in FAR)):
+    open_b = json.loads(files["router-b"].read_text())
+    open_b["access_control"]["enabled"] = False  # a compromised or misconfigured site router
+    files["router-b-open"] = out / "router-b-open.json5"
+    files["router-b-open"].write_text(json.dumps(open_b))
+    for identity in ("learner", "evaluator", "operator", *(f"actor-{a}" for a in FAR)):
         files[identity] = write(identity, "--client", identity)
     return files
 
@@ -106,21 +113,50 @@ def test_the_far_site_reaches_only_what_its_actors_may(mesh_files):
                 s.close()
 
 
-def test_a_router_that_router_a_does_not_list_forwards_nothing(mesh_files):
-    keys, ep_a, ep_c = Keys(RUN), f"tls/127.0.0.1:{free_port()}", f"tls/127.0.0.1:{free_port()}"
-    with router_process(mesh_files["router-a"], [ep_a]), router_process(mesh_files["router-c"], [ep_c], [ep_a]):
-        learner, actor = client(mesh_files["learner"], ep_a), client(mesh_files["actor-b0"], ep_c)
+def test_router_a_alone_limits_a_site_router_without_rules_to_its_actors(mesh_files):
+    keys, ep_a, ep_b = Keys(RUN), f"tls/127.0.0.1:{free_port()}", f"tls/127.0.0.1:{free_port()}"
+    with router_process(mesh_files["router-a"], [ep_a]), router_process(mesh_files["router-b-open"], [ep_b], [ep_a]):
+        learner, forger = client(mesh_files["learner"], ep_a), client(mesh_files["actor-b1"], ep_b)
+        evaluator = client(mesh_files["evaluator"], ep_a)
         try:
-            chunks = _collect(learner, keys.all_transitions)
-            weights = _collect(actor, keys.weights)
+            chunks, control = _collect(learner, keys.all_transitions), _collect(learner, keys.control)
+            weights = _collect(evaluator, keys.weights)
             time.sleep(2.0)
-            actor.put(keys.transitions("b0"), b"through a rogue router")
+            for key in (keys.transitions("b0"), keys.transitions("a0"), keys.weights, keys.flow, keys.control):
+                forger.put(key, b"forged")  # B's rules would stop all but its own; B has none
             learner.put(keys.weights, b"real")
             time.sleep(1.5)
-            assert _drain(chunks) == [] and _drain(weights) == []
+            # another site-b actor's name passes (A cannot tell b0 from b1 behind B); a0 of site A does not
+            assert _drain(chunks) == [(keys.transitions("b0"), b"forged")] and _drain(control) == []
+            assert [p for _, p in _drain(weights)] == [b"real"]  # the learner's weights only
         finally:
-            learner.close()
-            actor.close()
+            for s in (learner, forger, evaluator):
+                s.close()
+
+
+def test_a_router_that_router_a_does_not_list_forwards_nothing(mesh_files):
+    keys, ep_a = Keys(RUN), f"tls/127.0.0.1:{free_port()}"
+    ep_b, ep_c = f"tls/127.0.0.1:{free_port()}", f"tls/127.0.0.1:{free_port()}"
+    with (
+        router_process(mesh_files["router-a"], [ep_a]),
+        router_process(mesh_files["router-b"], [ep_b], [ep_a]),
+        router_process(mesh_files["router-c"], [ep_c], [ep_a]),  # the same config as B, another certificate
+    ):
+        learner = client(mesh_files["learner"], ep_a)
+        at_b, at_c = client(mesh_files["actor-b0"], ep_b), client(mesh_files["actor-b1"], ep_c)
+        try:
+            chunks = _collect(learner, keys.all_transitions)
+            weights = {"b": _collect(at_b, keys.weights), "c": _collect(at_c, keys.weights)}
+            time.sleep(2.0)
+            at_b.put(keys.transitions("b0"), b"through b")
+            at_c.put(keys.transitions("b1"), b"through c")
+            learner.put(keys.weights, b"real")
+            time.sleep(1.5)
+            assert _drain(chunks) == [(keys.transitions("b0"), b"through b")]
+            assert [p for _, p in _drain(weights["b"])] == [b"real"] and _drain(weights["c"]) == []
+        finally:
+            for s in (learner, at_b, at_c):
+                s.close()
 
 
 @pytest.mark.slow
@@ -164,7 +200,17 @@ def test_a_real_actor_at_the_far_site_trains_the_learner_through_the_secured_mes
             stop(learner)
 
 
-@pytest.mark.parametrize("args", [["--site", "b"], ["--site", "b="], ["--site", "b/x=a0"], ["--upstream", "a/b"]])
+@pytest.mark.parametrize(
+    "args",
+    [
+        ["--site", "b"],
+        ["--site", "b="],
+        ["--site", "b/x=a1"],
+        ["--upstream", "a/b"],
+        ["--site", "b=a0"],  # a0 is also a local actor
+        ["--site", "a=a1", "--upstream", "a"],
+    ],
+)
 def test_a_bad_site_is_refused_naming_it(args):
     done = subprocess.run(
         [PY, str(DEPLOY / "make_acl.py"), "--run", RUN, "--actors", "a0", *args],
@@ -172,4 +218,5 @@ def test_a_bad_site_is_refused_naming_it(args):
         text=True,
         timeout=60,
     )
-    assert done.returncode == 2 and ("--site" in done.stderr or "site" in done.stderr), done.stderr
+    bad = args[1].split("=")[0] if args[0] == "--site" else args[1]
+    assert done.returncode == 2 and bad in done.stderr.strip().splitlines()[-1], done.stderr

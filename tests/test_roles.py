@@ -132,9 +132,11 @@ def test_thread_role_imports_its_module_in_the_starting_thread(monkeypatch, tmp_
     cfg = compose_run([*TINY, "transport=inproc"])
     from common.transport.inproc import Bus
 
-    handle = roles.ThreadRole("learner", "learner", cfg, tmp_path, Bus())
-    assert sys.modules["late_role"].IMPORTED_IN == threading.current_thread().name
-    handle.start()
-    handle.join(5)
-    assert handle.exitcode == 0
-    monkeypatch.delitem(sys.modules, "late_role")
+    try:
+        handle = roles.ThreadRole("learner", "learner", cfg, tmp_path, Bus())
+        assert sys.modules["late_role"].IMPORTED_IN == threading.current_thread().name
+        handle.start()
+        handle.join(5)
+        assert handle.exitcode == 0
+    finally:
+        sys.modules.pop("late_role", None)

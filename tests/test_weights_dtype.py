@@ -46,3 +46,11 @@ def test_float64_weights_are_refused(tmp_path):
     rejects = wire.RejectCounter()
     assert not acting.adopt(wire.Weights(1, tensors, epoch=1), rejects, "k")
     assert rejects.counts["weights"] == 1
+
+
+def test_a_tensor_beyond_float16s_range_travels_as_float32():
+    from learner.service import narrowed
+
+    big = np.array([1.0, 7e4], np.float32)
+    assert narrowed(big, "float16").dtype == np.float32 and narrowed(big[:1], "float16").dtype == np.float16
+    assert narrowed(big, "float32") is big
