@@ -88,6 +88,21 @@ def client(config_file: Path | None, endpoint: str, timeout_s: float = 10.0) -> 
     return zenoh.open(zenoh_config(cfg))
 
 
+def collect(session: zenoh.Session, key: str) -> queue.Queue:
+    """Every (key, payload) a subscriber on `key` receives, in a queue."""
+    got: queue.Queue = queue.Queue()
+    session.declare_subscriber(key, lambda s: got.put((str(s.key_expr), s.payload.to_bytes())))
+    return got
+
+
+def drain(q: queue.Queue) -> list:
+    """What `q` holds now, in order."""
+    out = []
+    while not q.empty():
+        out.append(q.get())
+    return out
+
+
 def round_trip(config_file: Path | None, endpoint: str) -> bytes:
     """One put from one client session to a subscriber in another, through the router."""
     got: queue.Queue[bytes] = queue.Queue()

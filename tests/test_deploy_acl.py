@@ -6,17 +6,15 @@ run's CA cannot connect; the real learner and actor still train through it."""
 from __future__ import annotations
 
 import json
-import queue
 import subprocess
 import time
 from pathlib import Path
 
 import pytest
-import zenoh
 
 from common import wire
 from common.keys import Keys
-from tests.deploy_helpers import DEPLOY, PY, client, free_port, refused, router_process
+from tests.deploy_helpers import DEPLOY, PY, client, collect, drain, free_port, refused, router_process
 from tests.helpers import TINY, script, stop
 
 RUN = "acl"
@@ -55,19 +53,6 @@ def secured(tmp_path_factory):
     return files
 
 
-def _collect(session: zenoh.Session, key: str) -> queue.Queue:
-    got: queue.Queue = queue.Queue()
-    session.declare_subscriber(key, lambda s: got.put((str(s.key_expr), s.payload.to_bytes())))
-    return got
-
-
-def _drain(q: queue.Queue) -> list:
-    out = []
-    while not q.empty():
-        out.append(q.get())
-    return out
-
-
 def test_each_identity_may_do_only_what_its_role_may(secured):
     keys, ep = Keys(RUN), f"tls/127.0.0.1:{free_port()}"
     with router_process(secured["router"], [ep]):
@@ -75,12 +60,10 @@ def test_each_identity_may_do_only_what_its_role_may(secured):
         intruder, operator = client(secured["actor-actor-1"], ep), client(secured["operator"], ep)
         evaluator = client(secured["evaluator"], ep)
         try:
-            chunks = _collect(learner, keys.all_transitions)
-            control = _collect(learner, keys.control)
-            to_actor = {
-                name: _collect(honest, getattr(keys, name)) for name in ("weights", "flow", "control", "tracks")
-            }
-            to_evaluator = _collect(evaluator, keys.weights)
+            chunks = collect(learner, keys.all_transitions)
+            control = collect(learner, keys.control)
+            to_actor = {name: collect(honest, getattr(keys, name)) for name in ("weights", "flow", "control", "tracks")}
+            to_evaluator = collect(evaluator, keys.weights)
             learner.declare_queryable(keys.weights, lambda q: q.reply(keys.weights, b"served"))
             time.sleep(1.0)  # the router learns the subscriptions
             honest.put(keys.transitions("actor-0"), b"own")
@@ -91,16 +74,16 @@ def test_each_identity_may_do_only_what_its_role_may(secured):
             operator.put(keys.control, wire.encode(wire.Control("stop")))
             learner.put(keys.weights, b"real")
             time.sleep(1.5)
-            assert sorted(_drain(chunks)) == [
+            assert sorted(drain(chunks)) == [
                 (keys.transitions("actor-0"), b"own"),
                 (keys.transitions("actor-1"), b"its own"),
             ]
-            assert [p for _, p in _drain(control)] == [wire.encode(wire.Control("stop"))]  # the operator's only
-            assert [p for _, p in _drain(to_actor["weights"])] == [b"real"] and _drain(to_evaluator) == [
+            assert [p for _, p in drain(control)] == [wire.encode(wire.Control("stop"))]  # the operator's only
+            assert [p for _, p in drain(to_actor["weights"])] == [b"real"] and drain(to_evaluator) == [
                 (keys.weights, b"real")
             ]
-            assert _drain(to_actor["flow"]) == _drain(to_actor["tracks"]) == []
-            assert [p for _, p in _drain(to_actor["control"])] == [wire.encode(wire.Control("stop"))]
+            assert drain(to_actor["flow"]) == drain(to_actor["tracks"]) == []
+            assert [p for _, p in drain(to_actor["control"])] == [wire.encode(wire.Control("stop"))]
             assert [r.ok.payload.to_bytes() for r in honest.get(keys.weights, timeout=3) if r.ok] == [b"served"]
             alive = [str(r.ok.key_expr) for r in operator.liveliness().get(keys.all_alive(), timeout=2) if r.ok]
             assert keys.alive("learner", "learner") not in alive  # the intruder's forged token never got out

@@ -8,17 +8,15 @@ CA that A does not list forwards nothing, beside a listed one that does."""
 from __future__ import annotations
 
 import json
-import queue
 import subprocess
 import time
 from pathlib import Path
 
 import pytest
-import zenoh
 
 from common import wire
 from common.keys import Keys
-from tests.deploy_helpers import DEPLOY, PY, client, free_port, router_process
+from tests.deploy_helpers import DEPLOY, PY, client, collect, drain, free_port, router_process
 from tests.helpers import TINY, script, stop
 
 RUN = "meshacl"
@@ -68,28 +66,15 @@ def mesh_files(tmp_path_factory):
     return files
 
 
-def _collect(session: zenoh.Session, key: str) -> queue.Queue:
-    got: queue.Queue = queue.Queue()
-    session.declare_subscriber(key, lambda s: got.put((str(s.key_expr), s.payload.to_bytes())))
-    return got
-
-
-def _drain(q: queue.Queue) -> list:
-    out = []
-    while not q.empty():
-        out.append(q.get())
-    return out
-
-
 def test_the_far_site_reaches_only_what_its_actors_may(mesh_files):
     keys, ep_a, ep_b = Keys(RUN), f"tls/127.0.0.1:{free_port()}", f"tls/127.0.0.1:{free_port()}"
     with router_process(mesh_files["router-a"], [ep_a]), router_process(mesh_files["router-b"], [ep_b], [ep_a]):
         learner, operator = client(mesh_files["learner"], ep_a), client(mesh_files["operator"], ep_a)
         honest, intruder = client(mesh_files["actor-b0"], ep_b), client(mesh_files["actor-b1"], ep_b)
         try:
-            chunks = _collect(learner, keys.all_transitions)
-            control = _collect(learner, keys.control)
-            to_actor = {name: _collect(honest, getattr(keys, name)) for name in ("weights", "flow", "control")}
+            chunks = collect(learner, keys.all_transitions)
+            control = collect(learner, keys.control)
+            to_actor = {name: collect(honest, getattr(keys, name)) for name in ("weights", "flow", "control")}
             learner.declare_queryable(keys.weights, lambda q: q.reply(keys.weights, b"served"))
             token = honest.liveliness().declare_token(keys.alive("actor", "b0"))
             time.sleep(2.0)  # the routers link and learn the subscriptions
@@ -100,10 +85,10 @@ def test_the_far_site_reaches_only_what_its_actors_may(mesh_files):
             operator.put(keys.control, wire.encode(wire.Control("stop")))
             learner.put(keys.weights, b"real")
             time.sleep(1.5)
-            assert sorted(_drain(chunks)) == [(keys.transitions("b0"), b"own"), (keys.transitions("b1"), b"its own")]
-            assert [p for _, p in _drain(control)] == [wire.encode(wire.Control("stop"))]  # the operator's only
-            assert [p for _, p in _drain(to_actor["weights"])] == [b"real"] and _drain(to_actor["flow"]) == []
-            assert [p for _, p in _drain(to_actor["control"])] == [wire.encode(wire.Control("stop"))]
+            assert sorted(drain(chunks)) == [(keys.transitions("b0"), b"own"), (keys.transitions("b1"), b"its own")]
+            assert [p for _, p in drain(control)] == [wire.encode(wire.Control("stop"))]  # the operator's only
+            assert [p for _, p in drain(to_actor["weights"])] == [b"real"] and drain(to_actor["flow"]) == []
+            assert [p for _, p in drain(to_actor["control"])] == [wire.encode(wire.Control("stop"))]
             assert [r.ok.payload.to_bytes() for r in honest.get(keys.weights, timeout=3) if r.ok] == [b"served"]
             alive = [str(r.ok.key_expr) for r in learner.liveliness().get(keys.all_alive("actor"), timeout=2) if r.ok]
             assert alive == [keys.alive("actor", "b0")]  # the far actor's token reaches the learner's site
@@ -119,16 +104,16 @@ def test_router_a_alone_limits_a_site_router_without_rules_to_its_actors(mesh_fi
         learner, forger = client(mesh_files["learner"], ep_a), client(mesh_files["actor-b1"], ep_b)
         evaluator = client(mesh_files["evaluator"], ep_a)
         try:
-            chunks, control = _collect(learner, keys.all_transitions), _collect(learner, keys.control)
-            weights = _collect(evaluator, keys.weights)
+            chunks, control = collect(learner, keys.all_transitions), collect(learner, keys.control)
+            weights = collect(evaluator, keys.weights)
             time.sleep(2.0)
             for key in (keys.transitions("b0"), keys.transitions("a0"), keys.weights, keys.flow, keys.control):
                 forger.put(key, b"forged")  # B's rules would stop all but its own; B has none
             learner.put(keys.weights, b"real")
             time.sleep(1.5)
             # another site-b actor's name passes (A cannot tell b0 from b1 behind B); a0 of site A does not
-            assert _drain(chunks) == [(keys.transitions("b0"), b"forged")] and _drain(control) == []
-            assert [p for _, p in _drain(weights)] == [b"real"]  # the learner's weights only
+            assert drain(chunks) == [(keys.transitions("b0"), b"forged")] and drain(control) == []
+            assert [p for _, p in drain(weights)] == [b"real"]  # the learner's weights only
         finally:
             for s in (learner, forger, evaluator):
                 s.close()
@@ -145,15 +130,15 @@ def test_a_router_that_router_a_does_not_list_forwards_nothing(mesh_files):
         learner = client(mesh_files["learner"], ep_a)
         at_b, at_c = client(mesh_files["actor-b0"], ep_b), client(mesh_files["actor-b1"], ep_c)
         try:
-            chunks = _collect(learner, keys.all_transitions)
-            weights = {"b": _collect(at_b, keys.weights), "c": _collect(at_c, keys.weights)}
+            chunks = collect(learner, keys.all_transitions)
+            weights = {"b": collect(at_b, keys.weights), "c": collect(at_c, keys.weights)}
             time.sleep(2.0)
             at_b.put(keys.transitions("b0"), b"through b")
             at_c.put(keys.transitions("b1"), b"through c")
             learner.put(keys.weights, b"real")
             time.sleep(1.5)
-            assert _drain(chunks) == [(keys.transitions("b0"), b"through b")]
-            assert [p for _, p in _drain(weights["b"])] == [b"real"] and _drain(weights["c"]) == []
+            assert drain(chunks) == [(keys.transitions("b0"), b"through b")]
+            assert [p for _, p in drain(weights["b"])] == [b"real"] and drain(weights["c"]) == []
         finally:
             for s in (learner, at_b, at_c):
                 s.close()
