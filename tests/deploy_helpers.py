@@ -88,6 +88,35 @@ def client(config_file: Path | None, endpoint: str, timeout_s: float = 10.0) -> 
     return zenoh.open(zenoh_config(cfg))
 
 
+def acl_writer(out: Path, **env: str):
+    """Test certificates in `out`/certs (make_test_certs.sh with `env`, e.g. ACTORS, ROUTERS; skips
+    without openssl) and `write(name, *make_acl_args)`: make_acl.py's output as `out`/name.json5."""
+    if shutil.which("openssl") is None:
+        pytest.skip("openssl not installed: cannot make test certificates (apt-get install openssl)")
+    certs = out / "certs"
+    subprocess.run(
+        ["bash", str(DEPLOY / "make_test_certs.sh"), str(certs)],
+        check=True,
+        capture_output=True,
+        env={**env, "PATH": "/usr/bin:/bin"},
+        timeout=60,
+    )
+
+    def write(name: str, *args: str) -> Path:
+        text = subprocess.run(
+            [PY, str(DEPLOY / "make_acl.py"), *args, "--certs", str(certs)],
+            check=True,
+            capture_output=True,
+            text=True,
+            timeout=60,
+        ).stdout
+        path = out / f"{name}.json5"
+        path.write_text(text)
+        return path
+
+    return write
+
+
 def collect(session: zenoh.Session, key: str) -> queue.Queue:
     """Every (key, payload) a subscriber on `key` receives, in a queue."""
     got: queue.Queue = queue.Queue()

@@ -6,15 +6,13 @@ run's CA cannot connect; the real learner and actor still train through it."""
 from __future__ import annotations
 
 import json
-import subprocess
 import time
-from pathlib import Path
 
 import pytest
 
 from common import wire
 from common.keys import Keys
-from tests.deploy_helpers import DEPLOY, PY, client, collect, drain, free_port, refused, router_process
+from tests.deploy_helpers import acl_writer, client, collect, drain, free_port, refused, router_process
 from tests.helpers import TINY, script, stop
 
 RUN = "acl"
@@ -24,28 +22,8 @@ ACTORS = ["actor-0", "actor-1"]
 @pytest.fixture(scope="module")
 def secured(tmp_path_factory):
     """Certificates per role and actor, the router's config and each client's (as files)."""
-    import shutil
-
-    if shutil.which("openssl") is None:
-        pytest.skip("openssl not installed: cannot make test certificates (apt-get install openssl)")
     out = tmp_path_factory.mktemp("acl")
-    certs = out / "certs"
-    env = {"ACTORS": " ".join(ACTORS), "PATH": "/usr/bin:/bin"}
-    subprocess.run(
-        ["bash", str(DEPLOY / "make_test_certs.sh"), str(certs)], check=True, capture_output=True, env=env, timeout=60
-    )
-
-    def write(name: str, *args: str) -> Path:
-        text = subprocess.run(
-            [PY, str(DEPLOY / "make_acl.py"), *args, "--certs", str(certs)],
-            check=True,
-            capture_output=True,
-            text=True,
-            timeout=60,
-        ).stdout
-        path = out / f"{name}.json5"
-        path.write_text(text)
-        return path
+    write = acl_writer(out, ACTORS=" ".join(ACTORS))
 
     files = {"router": write("router", "--run", RUN, "--actors", *ACTORS)}
     for identity in ("learner", "evaluator", "operator", "client", *(f"actor-{a}" for a in ACTORS)):

@@ -10,13 +10,12 @@ from __future__ import annotations
 import json
 import subprocess
 import time
-from pathlib import Path
 
 import pytest
 
 from common import wire
 from common.keys import Keys
-from tests.deploy_helpers import DEPLOY, PY, client, collect, drain, free_port, router_process
+from tests.deploy_helpers import DEPLOY, PY, acl_writer, client, collect, drain, free_port, router_process
 from tests.helpers import TINY, script, stop
 
 RUN = "meshacl"
@@ -26,28 +25,8 @@ FAR = ["b0", "b1"]
 @pytest.fixture(scope="module")
 def mesh_files(tmp_path_factory):
     """Certificates (routers a, b and c; actors b0, b1) and every router's and client's config file."""
-    import shutil
-
-    if shutil.which("openssl") is None:
-        pytest.skip("openssl not installed: cannot make test certificates (apt-get install openssl)")
     out = tmp_path_factory.mktemp("meshacl")
-    certs = out / "certs"
-    env = {"ACTORS": " ".join(["a0", *FAR]), "ROUTERS": "a b c", "PATH": "/usr/bin:/bin"}
-    subprocess.run(
-        ["bash", str(DEPLOY / "make_test_certs.sh"), str(certs)], check=True, capture_output=True, env=env, timeout=60
-    )
-
-    def write(name: str, *args: str) -> Path:
-        text = subprocess.run(
-            [PY, str(DEPLOY / "make_acl.py"), *args, "--certs", str(certs)],
-            check=True,
-            capture_output=True,
-            text=True,
-            timeout=60,
-        ).stdout
-        path = out / f"{name}.json5"
-        path.write_text(text)
-        return path
+    write = acl_writer(out, ACTORS=" ".join(["a0", *FAR]), ROUTERS="a b c")
 
     far = ["--actors", *FAR, "--upstream", "a"]
     files = {
