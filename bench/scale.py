@@ -146,6 +146,7 @@ class Learner:
         return {
             "received": s.chunks_in.received,
             "dropped": s.chunks_in.dropped,
+            "waited": s.chunks_in.waited,
             "inserted": s.intake.counters["inserted"],
             "chunks": s.intake.counters["chunks"],
             "lost": s.intake.seq.lost,
@@ -271,6 +272,8 @@ class Learner:
             # never reached the learner: losses at the end of a stream, which seq gaps cannot see
             "chunks_missing": sent - d["received"],
             "inbox_dropped": d["dropped"],
+            # chunks that found the inbox full and held Zenoh's reader (back-pressure, learner.inbox_wait_s)
+            "inbox_waited": d["waited"],
             "rejected": d["rejected"],
             "send_lag_max_ms": max(lag for _, lag in stopped) * 1e3,
             "broadcasts": len(published),

@@ -15,6 +15,7 @@ ACTOR_SCALARS = (
     "lost_chunks",
     "rejected",
     "inbox_dropped",
+    "inbox_waited",
     "flow_paused",
     "return_mean",
     "policy_lag",

@@ -112,7 +112,9 @@ class LearnerService:
     def open(self) -> None:
         """Declare every key of the learner's row in the wiring table (common.keys)."""
         k, t = self.keys, self.t
-        self.chunks_in = t.subscribe(k.subscribe("transitions", ROLE), capacity=self.lc.inbox_chunks)
+        self.chunks_in = t.subscribe(
+            k.subscribe("transitions", ROLE), capacity=self.lc.inbox_chunks, wait_s=self.lc.inbox_wait_s
+        )
         self.episodes_in = t.subscribe(k.subscribe("episodes", ROLE), capacity=4096)
         self.control_in = t.subscribe(k.subscribe("control", ROLE), capacity=16)
         weights = k.publish("weights", ROLE)
@@ -253,6 +255,7 @@ class LearnerService:
             **self.intake.progress(),
             "rho_bar": self.core.replay.rho_bar if len(self.core.replay) else None,
             "inbox_dropped": self.chunks_in.dropped,
+            "inbox_waited": self.chunks_in.waited,
             "actors_alive": len(self.alive.alive()),
             "policy_version": self.core.updates,
             "flow_paused": self.limiter.paused,

@@ -47,6 +47,8 @@ def test_bad_values_are_refused_naming_the_field(override, field):
         ("scale.crash_steps=0", "crash_steps"),
         ("learner.rho_at=router", "rho_at"),
         ("learner.weights_dtype=int8", "weights_dtype"),
+        ("learner.inbox_wait_s=5.0", "inbox_wait_s"),
+        ("learner.inbox_wait_s=-1", "inbox_wait_s"),
         ("agent=ddpg_image learner.rho_at=actor", "rho_at"),
     ],
 )

@@ -1,4 +1,4 @@
-"""Transport: the bounded inbox, the in-process transport, and real Zenoh on 127.0.0.1.
+"""Transport: keys, the in-process transport, and real Zenoh on 127.0.0.1 (the inbox: test_inbox.py).
 
 The Zenoh tests run a router in a 'spawn' child process (forking after zenoh init hangs)
 and clients in this process; every session is closed and every process joined in `finally`.
@@ -23,7 +23,6 @@ import pytest
 from common.config.transport import TransportConfig
 from common.keys import Keys, key_matches
 from common.transport import Transport, make_transport
-from common.transport.inbox import BoundedInbox
 from common.transport.inproc import Bus, InprocTransport
 from common.wire import Control, TransitionChunk, Weights, WireError, decode, encode
 
@@ -62,26 +61,7 @@ def small_chunk(seq: int) -> TransitionChunk:
     )
 
 
-# --- inbox and keys ------------------------------------------------------------------------
-
-
-def test_inbox_drops_and_counts_when_full():
-    new = BoundedInbox(2)
-    assert [new.offer(i) for i in range(5)] == [True, True, False, False, False]
-    assert new.drain() == [0, 1] and (new.received, new.dropped) == (5, 3)
-    old = BoundedInbox(2, overflow="drop_old")
-    for i in range(5):
-        old.offer(i)
-    assert old.drain() == [3, 4] and old.dropped == 3
-
-
-def test_inbox_get_waits_and_close_wakes():
-    inbox = BoundedInbox(4)
-    assert inbox.get(timeout=0.01) is None
-    threading.Timer(0.05, inbox.offer, args=("x",)).start()
-    assert inbox.get(timeout=10) == "x"
-    threading.Timer(0.05, inbox.close).start()
-    assert inbox.get() is None and not inbox.offer("late") and inbox.dropped == 1
+# --- keys ------------------------------------------------------------------------
 
 
 def test_keys_and_matching():

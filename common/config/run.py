@@ -14,7 +14,7 @@ from omegaconf import MISSING
 
 from common.config.agent import AgentConfig, ScaleConfig
 from common.config.env import EnvConfig
-from common.config.transport import TransportConfig
+from common.config.transport import ZENOH_WAIT_BEFORE_CLOSE_S, TransportConfig
 
 
 @dataclass
@@ -85,6 +85,10 @@ class LearnerConfig:
     """Largest transition chunk accepted; bigger ones are counted (kind 'size') and dropped."""
     inbox_chunks: int = 512
     """Chunks waiting to be ingested before new ones are dropped (and counted); bounds memory."""
+    inbox_wait_s: float = 1.0
+    """A chunk that finds the inbox full waits this long for room before it is dropped: Zenoh's reader
+    stalls meanwhile, so actors publishing under BLOCK slow down instead of losing chunks (< 5 s,
+    zenoh's wait_before_close; 0: drop at once)."""
     max_updates: int = 0
     """Stop after this many updates (0: run until stopped)."""
     torch_threads: int = 2
@@ -231,6 +235,11 @@ def to_objects(cfg: Any) -> tuple[RunConfig, AgentConfig, ScaleConfig]:
     check_agent(run.agent)
     if run.learner.rho_at not in RHO_AT:
         raise ValueError(f"learner.rho_at must be one of {RHO_AT}, got {run.learner.rho_at!r}")
+    if not 0.0 <= run.learner.inbox_wait_s < ZENOH_WAIT_BEFORE_CLOSE_S:
+        raise ValueError(
+            f"learner.inbox_wait_s must be in [0, {ZENOH_WAIT_BEFORE_CLOSE_S}) (zenoh closes a link blocked"
+            f" that long), got {run.learner.inbox_wait_s}"
+        )
     if run.learner.weights_dtype not in WEIGHTS_DTYPES:
         raise ValueError(f"learner.weights_dtype must be one of {WEIGHTS_DTYPES}, got {run.learner.weights_dtype!r}")
     check_offline(run)

@@ -12,6 +12,9 @@ from dataclasses import dataclass, field
 from typing import Dict, List, Optional
 
 MiB = 1024 * 1024
+ZENOH_WAIT_BEFORE_CLOSE_S = 5.0
+"""zenoh's default `transport/link/tx/queue/congestion_control/block/wait_before_close`: a link blocked
+this long under BLOCK is closed, so a receiver's callback must never wait as long."""
 
 
 @dataclass

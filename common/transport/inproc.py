@@ -100,7 +100,7 @@ class Bus:
 
 
 class InprocPublisher:
-    """Puts onto the bus; never blocks (a full inbox counts a drop, as over Zenoh)."""
+    """Puts onto the bus; a full inbox counts a drop, as over Zenoh, after its `wait_s` (back-pressure)."""
 
     def __init__(self, bus: Bus, key: str, congestion: str, max_message_size: int) -> None:
         self.key = key
@@ -135,8 +135,10 @@ class InprocTransport:
     def publisher(self, key: str, *, congestion: str = "block") -> InprocPublisher:
         return InprocPublisher(self.bus, key, check_congestion(congestion), self.cfg.max_message_size)
 
-    def subscribe(self, key_expr: str, *, capacity: int | None = None, overflow: str = "drop_new") -> Subscription:
-        sub = self._own(Subscription(key_expr, capacity or self.cfg.inbox_capacity, overflow))
+    def subscribe(
+        self, key_expr: str, *, capacity: int | None = None, overflow: str = "drop_new", wait_s: float = 0.0
+    ) -> Subscription:
+        sub = self._own(Subscription(key_expr, capacity or self.cfg.inbox_capacity, overflow, wait_s))
         self.bus.add_sub(sub)
         sub._on_close = lambda: self.bus.remove_sub(sub)
         return sub

@@ -53,8 +53,8 @@ class Received:
 class Subscription(BoundedInbox[Received]):
     """The bounded inbox of one subscriber; `get`/`drain` from the owner's loop, `dropped` counts overflow."""
 
-    def __init__(self, key_expr: str, capacity: int, overflow: str = "drop_new") -> None:
-        super().__init__(capacity, overflow)
+    def __init__(self, key_expr: str, capacity: int, overflow: str = "drop_new", wait_s: float = 0.0) -> None:
+        super().__init__(capacity, overflow, wait_s)
         self.key_expr = key_expr
         self._on_close: Callable[[], None] | None = None
 
@@ -169,8 +169,11 @@ class Transport(Protocol):
     def publisher(self, key: str, *, congestion: str = "block") -> Publisher:
         """A publisher on concrete `key`; congestion 'block' (default) or 'drop'."""
 
-    def subscribe(self, key_expr: str, *, capacity: int | None = None, overflow: str = "drop_new") -> Subscription:
-        """Start receiving puts matching `key_expr` into a bounded inbox of `capacity`."""
+    def subscribe(
+        self, key_expr: str, *, capacity: int | None = None, overflow: str = "drop_new", wait_s: float = 0.0
+    ) -> Subscription:
+        """Start receiving puts matching `key_expr` into a bounded inbox of `capacity`; a put that finds it
+        full waits up to `wait_s` for room (back-pressure on the sender under BLOCK), then `overflow` applies."""
 
     def serve_latest(self, key: str) -> LatestValue:
         """Answer `fetch(key)` from anywhere with the payload last given to `.update()`."""

@@ -155,12 +155,14 @@ class ZenohTransport:
         pub = self.session.declare_publisher(key, congestion_control=cc)
         return self._own(ZenohPublisher(pub, key, self.cfg.max_message_size))
 
-    def subscribe(self, key_expr: str, *, capacity: int | None = None, overflow: str = "drop_new") -> Subscription:
+    def subscribe(
+        self, key_expr: str, *, capacity: int | None = None, overflow: str = "drop_new", wait_s: float = 0.0
+    ) -> Subscription:
         self._check_open()
-        sub = Subscription(key_expr, capacity or self.cfg.inbox_capacity, overflow)
+        sub = Subscription(key_expr, capacity or self.cfg.inbox_capacity, overflow, wait_s)
 
         def on_sample(sample: zenoh.Sample) -> None:
-            # copy out of Zenoh's buffer and push; no network call, never blocks
+            # copy out of Zenoh's buffer and push; no network call, waits at most wait_s (< 5 s)
             sub.offer(Received(str(sample.key_expr), sample.payload.to_bytes()))
 
         zsub = self.session.declare_subscriber(key_expr, _callback(on_sample))
