@@ -201,6 +201,9 @@ def test_checkpoint_resumes_to_identical_updates(data):
             assert torch.equal(value, other[key]), (name, key)
 
 
+# slow (~100 s on 2 cores, the longest of the suite): 1,000 full updates on real LaneDrive data;
+# the GVF's convergence is also checked fast on known-value chains (test_gvf.py)
+@pytest.mark.slow
 def test_gvf_predictions_on_lanedrive_beat_a_constant_predictor():
     """Real LaneDrive: kinematic controller + OU noise (sigma 1.0) as behaviour; 1,000 full
     updates (batch 64, GVF lr 1e-3), data streamed in as in Algorithm 1 so that rho comes
