@@ -85,10 +85,12 @@ class LearnerConfig:
     """Largest transition chunk accepted; bigger ones are counted (kind 'size') and dropped."""
     inbox_chunks: int = 512
     """Chunks waiting to be ingested before new ones are dropped (and counted); bounds memory."""
-    inbox_wait_s: float = 1.0
-    """A chunk that finds the inbox full waits this long for room before it is dropped: Zenoh's reader
-    stalls meanwhile, so actors publishing under BLOCK slow down instead of losing chunks (< 5 s,
-    zenoh's wait_before_close; 0: drop at once)."""
+    inbox_wait_s: float = 0.0
+    """A chunk that finds the inbox full waits this long for room before it is dropped (0: drop at once,
+    counted). Zenoh's reader stalls meanwhile, so BLOCK actors slow down instead of losing chunks, but
+    everything else to the learner waits too: off by default, as at 256 actors 1 s starved the weights
+    and acks (p99 1.2-5.6 s) and lost more chunks than it saved (README, capacity). < 5 s (zenoh's
+    wait_before_close)."""
     max_updates: int = 0
     """Stop after this many updates (0: run until stopped)."""
     torch_threads: int = 2

@@ -3,9 +3,11 @@
 A Zenoh callback must return soon (under congestion control BLOCK a link stuck for 5 s,
 zenoh's `wait_before_close`, is closed), so `offer` waits at most `wait_s` (default 0: not at
 all): when the inbox is still full it drops (the new item, or the oldest one for "latest value
-wins" topics such as weights) and counts. A short wait is back-pressure: the transport's
-thread stops reading, so BLOCK publishers upstream slow down instead of their data being
-dropped here. The owner's loop takes items with `get` or `drain` at its own pace.
+wins" topics such as weights) and counts. A wait is back-pressure: the transport's thread stops
+reading, so BLOCK publishers upstream slow down instead of their data being dropped here; but
+every other message on that session waits with it (at 256 actors a learner waiting 1 s per chunk
+starved its own weights and acks), so the learner keeps it off by default (`learner.inbox_wait_s`).
+The owner's loop takes items with `get` or `drain` at its own pace.
 """
 
 from __future__ import annotations
