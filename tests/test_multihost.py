@@ -105,6 +105,9 @@ def test_router_learner_and_two_actors_in_three_namespaces(namespaces, tmp_path)
             stop(proc)
 
 
+# slow (~57 s): the same ACL refusals run by default on loopback (test_deploy_acl.py, with the real
+# learner and actor); here they are checked across namespaces as well
+@pytest.mark.slow
 def test_secured_router_across_namespaces_refuses_an_intruder_with_an_actor_identity(namespaces, tmp_path):
     """deploy/make_acl.py's router in ns R; the learner in ns L; an actor and an intruder holding
     another actor's certificate in ns A. The intruder's stop, pause and weights reach nobody."""
