@@ -22,7 +22,6 @@ from common.config.transport import ZENOH_WAIT_BEFORE_CLOSE_S
 T = TypeVar("T")
 
 OVERFLOW_POLICIES = ("drop_new", "drop_old")
-MAX_WAIT_S = ZENOH_WAIT_BEFORE_CLOSE_S
 
 
 class BoundedInbox(Generic[T]):
@@ -33,9 +32,9 @@ class BoundedInbox(Generic[T]):
             raise ValueError(f"capacity must be >= 1, got {capacity}")
         if overflow not in OVERFLOW_POLICIES:
             raise ValueError(f"overflow must be one of {OVERFLOW_POLICIES}, got {overflow!r}")
-        if not 0.0 <= wait_s < MAX_WAIT_S:
+        if not 0.0 <= wait_s < ZENOH_WAIT_BEFORE_CLOSE_S:
             raise ValueError(
-                f"wait_s must be in [0, {MAX_WAIT_S}) (zenoh closes a link blocked that long), got {wait_s}"
+                f"wait_s must be in [0, {ZENOH_WAIT_BEFORE_CLOSE_S}) (zenoh closes a link blocked that long), got {wait_s}"
             )
         self.capacity = capacity
         self.overflow = overflow
