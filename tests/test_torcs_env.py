@@ -7,6 +7,7 @@ The road-set and registration tests run everywhere; the rest drive the real TORC
 
 from __future__ import annotations
 
+import json
 import math
 import os
 import signal
@@ -191,3 +192,19 @@ def test_killed_torcs_ends_the_episode_and_the_env_keeps_stepping(env):
     env.reset(seed=0)
     _, _, terminated, truncated, info = env.step(np.zeros(2, np.float32))
     assert info["steps"] == 1 and not (terminated or truncated)
+
+
+@needs_torcs
+def test_the_soak_bench_drives_across_resets_and_loses_no_episode():
+    """bench/torcs_soak.py for a few seconds: episodes end by truncation or termination, none is lost."""
+    out = subprocess.run(
+        [sys.executable, "bench/torcs_soak.py", "--minutes", "0.1", "--sample-every", "2"],
+        capture_output=True,
+        text=True,
+        timeout=300,
+        check=True,
+    )
+    result = json.loads(out.stdout.strip().splitlines()[-1])
+    assert result["steps"] > 1000 and result["ended"] >= 1 and result["begun"] == result["ended"] + 1
+    assert result["lost_episodes"] == 0 and result["errors"] == 0
+    assert result["launches"] == result["begun"]  # a reset starts a fresh TORCS on the next road
