@@ -105,6 +105,7 @@ class LearningCore:
             actor_delay=scale.td3_actor_delay,
             lr_actor_decay_updates=scale.lr_actor_decay_updates,
             lr_actor_final=scale.lr_actor_final,
+            actor_min_q=scale.actor_min_q,
         )
         self.updates = 0
         self.warm = False  # g trained on the warm-up data and every rho recomputed

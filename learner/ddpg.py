@@ -16,6 +16,11 @@ without gradient); for the image baselines they read the observation keys direct
 smaller target value, target-policy smoothing (clipped Gaussian noise on the target action), and
 the actor stepped only every `actor_delay` updates.
 
+`actor_min_q` (an option with td3, off by default) makes the actor maximise the smaller of the
+twin critics' values, as SAC does, instead of TD3's first critic: where the two disagree (off the
+data, e.g. at target speeds the replay has no crash for) the actor is not pulled towards the more
+optimistic one.
+
 `lr_actor_decay_updates` (an option, 0 by default) lowers the actor's step size linearly to
 `lr_actor_final` of it over that many updates, so that a policy found early moves less later.
 """
@@ -52,10 +57,15 @@ class DDPG:
         actor_delay: int = 2,
         lr_actor_decay_updates: int = 0,
         lr_actor_final: float = 0.1,
+        actor_min_q: bool = False,
     ):
+        if actor_min_q and not td3:
+            raise ValueError("actor_min_q needs td3 (twin critics)")
         self.actor, self.critic = actor, critic
+        self.actor_min_q = actor_min_q
         self.td3, self.actor_delay, self.steps = td3, actor_delay, 0
         actor_module = TensorDictModule(actor, in_keys=list(actor_in_keys), out_keys=["action"])
+        self.actor_module = actor_module
 
         def q(net: nn.Module) -> TensorDictModule:
             return TensorDictModule(net, in_keys=list(critic_in_keys), out_keys=["state_action_value"])
@@ -100,7 +110,21 @@ class DDPG:
         if self.td3:  # one naming for both losses' outputs
             out["loss_value"] = out["loss_qvalue"]
             out["pred_value"] = out["pred_value"].reshape(2, -1)[0]
+        if self.actor_min_q:
+            out["loss_actor"] = self.pessimistic_actor_loss(batch)
         return out["loss_actor"] + out["loss_value"], out
+
+    def pessimistic_actor_loss(self, batch: TensorDictBase) -> Tensor:
+        """-min(Q1, Q2)(s, pi(s)), the critics' parameters detached.
+
+        Written here because torchrl's TD3Loss takes the first critic only (its actor_loss)."""
+        acted = self.actor_module(batch.select(*self.actor_module.in_keys).clone(False))
+        qnet = self.loss_module.qvalue_network
+        values = []
+        for params in self.loss_module.qvalue_network_params.unbind(0):
+            with params.detach().to_module(qnet):
+                values.append(qnet(acted.select(*qnet.in_keys).clone(False))["state_action_value"])
+        return -torch.minimum(*values).mean()
 
     def actor_steps_now(self) -> bool:
         """Whether this update steps the actor (every update; with td3 every `actor_delay`)."""

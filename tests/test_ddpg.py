@@ -175,3 +175,39 @@ def test_ddpg_learns_pendulum_from_low_dim_state():
         returns.append(total)
     print(f"Pendulum greedy returns {np.round(returns)}")
     assert np.mean(returns) > -400
+
+
+class LinearQ(torch.nn.Module):
+    """Q(phi, a) = w * a0: a critic whose preferred first action is +1 (w > 0) or -1 (w < 0)."""
+
+    def __init__(self):
+        super().__init__()
+        self.w = torch.nn.Parameter(torch.ones(1))
+
+    def forward(self, phi, action):
+        return self.w * action[..., :1]
+
+
+@pytest.mark.parametrize("min_q, expected", [(False, 1.0), (True, 0.0)])
+def test_the_pessimistic_actor_follows_the_smaller_of_two_disagreeing_critics(min_q, expected):
+    """Critics Q1 = a0 and Q2 = -a0, held fixed: TD3's actor (Q1) drives a0 to +1; with
+    actor_min_q it maximises min(a0, -a0) = -|a0|, whose best is a0 = 0."""
+    torch.manual_seed(0)
+    actor = BranchedActor(3, [32], n_actions=2, squash="tanh")
+    ddpg = DDPG(
+        actor, LinearQ(), actor_in_keys=["phi"], critic_in_keys=["phi", "action"],
+        td3=True, actor_delay=1, lr_actor=1e-2, lr_critic=0.0, actor_min_q=min_q,
+    )  # fmt: skip
+    ddpg.loss_module.qvalue_network_params["module", "w"].data.copy_(torch.tensor([[1.0], [-1.0]]))
+    batch = random_batch(64)
+    for _ in range(300):
+        ddpg.update(batch)
+    with torch.no_grad():
+        a0 = actor(torch.randn(256, 3))[:, 0]
+    assert a0.mean().item() == pytest.approx(expected, abs=0.1)
+    assert ddpg.loss_module.qvalue_network_params["module", "w"].flatten().tolist() == [1.0, -1.0]  # critics held
+
+
+def test_actor_min_q_without_twin_critics_is_refused():
+    with pytest.raises(ValueError, match="actor_min_q"):
+        make(3, 2, actor_min_q=True)

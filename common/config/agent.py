@@ -124,6 +124,8 @@ class ScaleConfig:
     """td3: the target action's noise is clipped to +-this."""
     td3_actor_delay: int = 2
     """td3: the actor is stepped once every this many updates."""
+    actor_min_q: bool = False
+    """td3: the actor maximises min(Q1, Q2) (as SAC) instead of TD3's Q1 (learner.ddpg)."""
 
 
 SQUASHES = ("clip", "tanh")
@@ -160,6 +162,8 @@ def check_scale(scale: ScaleConfig) -> None:
         raise ValueError(f"scale.lr_actor_decay_updates must be >= 0, got {scale.lr_actor_decay_updates}")
     if not 0.0 < scale.lr_actor_final <= 1.0:
         raise ValueError(f"scale.lr_actor_final must be in (0, 1], got {scale.lr_actor_final}")
+    if scale.actor_min_q and not scale.td3:
+        raise ValueError("scale.actor_min_q needs scale.td3=true (it takes the smaller of the twin critics)")
     if scale.td3_actor_delay < 1:
         raise ValueError(f"scale.td3_actor_delay must be >= 1, got {scale.td3_actor_delay}")
 
