@@ -3,7 +3,9 @@ on the train roads (a new road at every reset), across resets and TORCS relaunch
 begun and ended (an episode begun and never ended by termination or truncation is lost), relaunches
 and errors, and samples this Python process's resident memory (is it flat?).
 
-Usage: python bench/torcs_soak.py [--minutes 60] [--sample-every 30]. Needs `make torcs`. The last
+Usage: python bench/torcs_soak.py [--minutes 60] [--sample-every 30] [--kill-every S]. --kill-every
+SIGKILLs the running TORCS every S seconds, mid-episode, so that relaunches after a death are soaked
+too (the episode it ends counts as truncated, ``info["relaunched"]``). Needs `make torcs`. The last
 line printed is one JSON object.
 """
 
@@ -11,6 +13,8 @@ from __future__ import annotations
 
 import argparse
 import json
+import os
+import signal
 import time
 
 import gymnasium as gym
@@ -28,17 +32,26 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--minutes", type=float, default=60.0)
     parser.add_argument("--sample-every", type=float, default=30.0, help="seconds between memory samples")
+    parser.add_argument("--kill-every", type=float, default=0.0, help="SIGKILL TORCS this often (s); 0: never")
     args = parser.parse_args()
     env = gym.make("TorcsDrive-v0", track="train")
     policy = kinematic_policy(env.unwrapped.vehicle)
     procs = env.unwrapped.sim.procs
     counts = {"steps": 0, "begun": 0, "terminated": 0, "truncated": 0, "errors": 0, "laps": 0}
+    counts |= {"kills": 0, "ended_by_relaunch": 0}
     samples: list[tuple[float, float]] = []
     start = next_sample = time.monotonic()
     end = start + args.minutes * 60
+    next_kill = start + args.kill_every if args.kill_every > 0 else float("inf")
     obs, info = env.reset(seed=0)
     counts["begun"] += 1
     while time.monotonic() < end:
+        if time.monotonic() >= next_kill:
+            for p in procs:
+                if p.alive:  # TORCS runs in its own session: kill the whole group, as a crash would
+                    os.killpg(p.proc.pid, signal.SIGKILL)
+                    counts["kills"] += 1
+            next_kill += args.kill_every
         try:
             obs, _, terminated, truncated, info = env.step(policy(obs, info))
         except Exception as e:  # counted, and the run goes on from a reset: the soak measures, not hides
@@ -51,6 +64,7 @@ def main() -> None:
         if terminated or truncated:
             counts["terminated" if terminated else "truncated"] += 1
             counts["laps"] += int(bool(info.get("lap_completed")))
+            counts["ended_by_relaunch"] += int(bool(info.get("relaunched")))
             obs, info = env.reset()
             counts["begun"] += 1
         if time.monotonic() >= next_sample:

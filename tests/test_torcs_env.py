@@ -195,10 +195,10 @@ def test_killed_torcs_ends_the_episode_and_the_env_keeps_stepping(env):
 
 
 @needs_torcs
-def test_the_soak_bench_drives_across_resets_and_loses_no_episode():
-    """bench/torcs_soak.py for a few seconds: episodes end by truncation or termination, none is lost."""
+def test_the_soak_bench_drives_across_resets_and_kills_and_loses_no_episode():
+    """bench/torcs_soak.py for a few seconds, TORCS killed every 1.5 s: none is lost, each kill relaunched."""
     out = subprocess.run(
-        [sys.executable, "bench/torcs_soak.py", "--minutes", "0.1", "--sample-every", "2"],
+        [sys.executable, "bench/torcs_soak.py", "--minutes", "0.1", "--sample-every", "2", "--kill-every", "1.5"],
         capture_output=True,
         text=True,
         timeout=300,
@@ -207,4 +207,6 @@ def test_the_soak_bench_drives_across_resets_and_loses_no_episode():
     result = json.loads(out.stdout.strip().splitlines()[-1])
     assert result["steps"] > 1000 and result["ended"] >= 1 and result["begun"] == result["ended"] + 1
     assert result["lost_episodes"] == 0 and result["errors"] == 0
-    assert result["launches"] == result["begun"]  # a reset starts a fresh TORCS on the next road
+    assert result["kills"] >= 2 and result["relaunches"] == result["kills"] == result["ended_by_relaunch"]
+    # a reset starts a fresh TORCS on the next road; a kill starts one on the same road
+    assert result["launches"] == result["begun"] + result["relaunches"]
