@@ -30,15 +30,16 @@ received), inbox drops and rejects; the weight latency from publish to arrival a
 subscriber (p50/p99 over every broadcast x subscriber) and to the last of the N (p50/p99 over
 broadcasts); CPU seconds and resident MB of the learner (this process, which also paces the
 phases), the routers and the actor processes. Per N they are summed or pooled over both phases.
-With --memory-minutes M, the largest N then runs M minutes more per topology (rho at the
-learner, weights every --broadcast-every s), router and learner RSS sampled every
---memory-every s: first, last and max (is memory flat?). `meets_target` per N: no chunk lost,
+With --memory-minutes M, the largest N then runs M minutes more per topology (rho where
+--memory-rho says, the learner by default; weights every --broadcast-every s), router and
+learner RSS sampled every --memory-every s: first, last and max (is memory flat?). `meets_target` per N: no chunk lost,
 missing or dropped and p99 <= 100 ms (DESIGN.md asks it of N = 256).
 
 Usage: python bench/scale.py [--actors 1 16 64 256] [--topology router mesh] [--rate 1]
        [--seconds 10] [--warmup 2] [--broadcasts 20] [--broadcast-every 0.5] [--per-process 32]
-       [--memory-minutes 0] [--memory-every 10] [hydra overrides, e.g. learner.ingest_batch=16;
-       learner.weights_dtype=float16 broadcasts half the bytes]
+       [--memory-minutes 0] [--memory-every 10] [--memory-rho learner|actor]
+       [hydra overrides, e.g. learner.ingest_batch=16; learner.weights_dtype=float16 broadcasts
+       half the bytes]
 The last line printed is one JSON object: {"router": {N: figures}, "mesh": {N: ...}, "memory":
 {topology: ...} (with --memory-minutes), "params": {...}}; one line per N goes to stderr as it ends.
 """
@@ -309,7 +310,11 @@ def run_case(learner: Learner, ctx, actor_cfg, n: int, args, memory_minutes: flo
         memory = None
         if memory_minutes > 0:
             memory = learner.phase(
-                **shared, log_mu=False, seconds=memory_minutes * 60, broadcasts=None, sample_every=args.memory_every
+                **shared,
+                log_mu=args.memory_rho == "actor",
+                seconds=memory_minutes * 60,
+                broadcasts=None,
+                sample_every=args.memory_every,
             )
     finally:
         for g in groups:
@@ -385,6 +390,7 @@ def main(argv: list[str] | None = None) -> dict:
     parser.add_argument("--per-process", type=int, default=32, help="emulated actors packed in one OS process")
     parser.add_argument("--memory-minutes", type=float, default=0.0, help="then run the largest N this long")
     parser.add_argument("--memory-every", type=float, default=10.0, help="seconds between RSS samples of that run")
+    parser.add_argument("--memory-rho", choices=["learner", "actor"], default="learner", help="rho in that run")
     parser.add_argument("overrides", nargs="*", help="hydra overrides of the run config, e.g. learner.ingest_batch=16")
     args = parser.parse_args(argv)
     if min(args.actors) < 1 or args.rate <= 0 or args.per_process < 1 or args.broadcasts < 1:
@@ -421,7 +427,7 @@ def main(argv: list[str] | None = None) -> dict:
                 results[topology][str(n)] = case
                 print(json.dumps({"topology": topology, **rounded(case)}), file=sys.stderr, flush=True)
                 if mem is not None:
-                    memory[topology] = {"actors": n, **mem}
+                    memory[topology] = {"actors": n, "rho_at": args.memory_rho, **mem}
         finally:
             if learner is not None:
                 learner.close()
@@ -433,7 +439,10 @@ def main(argv: list[str] | None = None) -> dict:
         out["memory"] = memory
     out["params"] = {
         **{k: getattr(args, k) for k in ("actors", "topology", "rate", "seconds", "warmup", "broadcasts")},
-        **{k: getattr(args, k) for k in ("broadcast_every", "per_process", "memory_minutes", "memory_every")},
+        **{
+            k: getattr(args, k)
+            for k in ("broadcast_every", "per_process", "memory_minutes", "memory_every", "memory_rho")
+        },
         "mesh_configs": all((MESH_CONFIGS / f"router-mesh-{s}.json5").exists() for s in "ab"),
         "chunk_len": cfg.actor.chunk_len,
         "chunk_bytes": chunk_bytes,

@@ -1,6 +1,7 @@
 """Smoke test of bench/scale.py: 1 and 4 emulated actors (two to a process) behind one router and
-behind the far router of a mesh; the last line is the JSON result with every figure present and
-positive, nothing lost under BLOCK at this low rate, and every broadcast acked. No timing assertions."""
+behind the far router of a mesh, then a 3-second memory run with rho at the actors; the last line
+is the JSON result with every figure present and positive, nothing lost under BLOCK at this low
+rate, and every broadcast acked. No timing assertions."""
 
 import json
 import math
@@ -31,6 +32,12 @@ TINY = [
     "2",
     "--per-process",
     "2",
+    "--memory-minutes",
+    "0.05",
+    "--memory-every",
+    "0.5",
+    "--memory-rho",
+    "actor",
     "scale.buffer_size=1000",
     "learner.ingest_batch=8",
 ]
@@ -98,3 +105,8 @@ def test_bench_scale_prints_its_figures_as_json():
                     cpu = phase["cpu_s"][role]
                     assert math.isfinite(cpu) and cpu >= 0 and positive(phase["rss_mb"][role]), (where, name, role)
                 assert positive(phase["cpu_s"]["learner"]), (where, name)
+        # the memory run of the largest N, with the chunks carrying log mu_hat as asked
+        memory = result["memory"][topology]
+        assert memory["actors"] == 4 and memory["rho_at"] == "actor" and memory["samples"] >= 2, topology
+        assert memory["chunks_lost"] == memory["chunks_missing"] == memory["inbox_dropped"] == 0, topology
+        assert all(positive(r["max_mb"]) for r in memory["rss"].values()), topology
