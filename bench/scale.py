@@ -143,6 +143,9 @@ def summarize_memory(m: dict, minutes: float) -> dict:
             "last_mb": samples[-1][role],
             "max_mb": max(s[role] for s in samples),
             "growth_mb": samples[-1][role] - samples[0][role],
+            # a leak keeps growing after start-up; warm-up growth stops in the first half
+            "second_half_growth_mb": samples[-1][role] - samples[len(samples) // 2][role],
+            "series_mb": [round(s[role], 1) for s in samples],
         }
         for role in samples[0]
     }

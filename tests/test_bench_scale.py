@@ -110,3 +110,5 @@ def test_bench_scale_prints_its_figures_as_json():
         assert memory["actors"] == 4 and memory["rho_at"] == "actor" and memory["samples"] >= 2, topology
         assert memory["chunks_lost"] == memory["chunks_missing"] == memory["inbox_dropped"] == 0, topology
         assert all(positive(r["max_mb"]) for r in memory["rss"].values()), topology
+        for r in memory["rss"].values():
+            assert len(r["series_mb"]) == memory["samples"] and max(r["series_mb"]) == round(r["max_mb"], 1), topology
