@@ -48,6 +48,7 @@ The last line printed is one JSON object: {"router": {N: figures}, "mesh": {N: .
 from __future__ import annotations
 
 import argparse
+import functools
 import json
 import logging
 import multiprocessing as mp
@@ -63,12 +64,12 @@ _HERE = Path(__file__).resolve().parent
 sys.path[:] = [p for p in sys.path if Path(p or ".").resolve() != _HERE]
 sys.path.insert(0, str(_HERE.parent))
 
+from bench.acks import Latencies  # noqa: E402
 from bench.scale_learner import Learner  # noqa: E402
 from bench.scale_procs import (  # noqa: E402
     MESH_CONFIGS,
     TOPOLOGIES,
     actor_name,
-    percentile,
     start_fleet,
     start_topology,
     stop_all,
@@ -115,9 +116,9 @@ def run_case(learner: Learner, ctx, actor_cfg, n: int, args, memory_minutes: flo
 
 
 def summarize_case(n: int, processes: int, phases: dict) -> dict:
-    each = [x for p in phases.values() for x in p.pop("_latencies")]
+    each = functools.reduce(Latencies.merge, [p.pop("_latencies") for p in phases.values()])
     totals = {k: sum(p[k] for p in phases.values()) for k in ("chunks_lost", "chunks_missing", "inbox_dropped")}
-    p99 = percentile(each, 99)
+    p99 = each.percentile(99)
     return {
         "actors": n,
         "processes": processes,
@@ -125,9 +126,9 @@ def summarize_case(n: int, processes: int, phases: dict) -> dict:
         **{f"ingest_per_busy_s_{name}": p["ingest_per_busy_s"] for name, p in phases.items()},
         **totals,
         "rejected": sum(p["rejected"] for p in phases.values()),
-        "weights_latency_p50_ms": percentile(each, 50),
+        "weights_latency_p50_ms": each.percentile(50),
         "weights_latency_p99_ms": p99,
-        "weights_acks": len(each),
+        "weights_acks": each.count,
         "weights_missed": sum(p["weights_missed"] for p in phases.values()),
         "meets_target": not any(totals.values()) and p99 is not None and p99 <= LATENCY_P99_TARGET_MS,
         "phases": phases,
@@ -155,8 +156,8 @@ def summarize_memory(m: dict, minutes: float) -> dict:
         "samples": len(samples),
         "rss": rss,
         **{k: m[k] for k in keep},
-        "weights_latency_p50_ms": percentile(each, 50),
-        "weights_latency_p99_ms": percentile(each, 99),
+        "weights_latency_p50_ms": each.percentile(50),
+        "weights_latency_p99_ms": each.percentile(99),
         "weights_missed": m["weights_missed"],
         "cpu_s": m["cpu_s"],
     }

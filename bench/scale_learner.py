@@ -12,7 +12,8 @@ from collections import defaultdict
 
 import numpy as np
 
-from bench.scale_procs import percentile, usage
+from bench.acks import Acks
+from bench.scale_procs import usage
 from common import wire
 
 ACK_WAIT_S = 5.0
@@ -63,14 +64,15 @@ class Learner:
         time.sleep(0.005)  # the learner's own idle wait when nothing arrived
         return 0.0
 
-    def take_acks(self, receipts: dict) -> None:
+    def take_acks(self, sink) -> None:
+        """Hand every ack that came in to sink(name, version, arrival time.time())."""
         while True:
             try:
                 batch = self.acks.get_nowait()
             except queue.Empty:
                 return
             for name, version, arrived in batch:
-                receipts[version].setdefault(name, arrived)
+                sink(name, version, arrived)
 
     def counters(self) -> dict:
         s = self.service
@@ -113,7 +115,7 @@ class Learner:
             t = time.monotonic()
             while time.monotonic() - t < 0.5:
                 self.step()
-                self.take_acks(receipts)
+                self.take_acks(lambda name, version, arrived: receipts[version].setdefault(name, arrived))
             heard = {name for v, got in receipts.items() if v >= first for name in got}
             if heard >= set(names):
                 return
@@ -141,53 +143,47 @@ class Learner:
         start = time.time() + 0.05
         for g in groups:
             g.send(log_mu, start)
-        receipts: dict = defaultdict(dict)
+        acks = Acks(names)
         t = time.perf_counter()
         while time.perf_counter() - t < warmup:
             self.step()
-            self.take_acks(receipts)
+            self.take_acks(acks.add)
         at_t0, read0 = self.counters(), self.readings(groups)
         inserted0 = at_t0["inserted"]
-        published: dict[int, float] = {}
+        broadcasts_sent = 0
         samples: list[dict] = []
         busy, calls, t0 = 0.0, 0, time.perf_counter()
         next_broadcast, next_sample = t0, t0
         while True:
             now = time.perf_counter()
-            if now - t0 >= seconds and (broadcasts is None or len(published) >= broadcasts):
+            if now - t0 >= seconds and (broadcasts is None or broadcasts_sent >= broadcasts):
                 break
-            if (broadcasts is None or len(published) < broadcasts) and now >= next_broadcast:
-                version, at = self.publish(log_mu)
-                published[version] = at
+            if (broadcasts is None or broadcasts_sent < broadcasts) and now >= next_broadcast:
+                acks.published(*self.publish(log_mu))
+                broadcasts_sent += 1
                 next_broadcast += every
             if sample_every and now >= next_sample:
                 samples.append({name: rss for name, (_, rss) in self.readings([]).items() if name != "actors"})
                 next_sample += sample_every
             spent = self.step()
             busy, calls = busy + spent, calls + (spent > 0)
-            self.take_acks(receipts)
+            self.take_acks(acks.add)
         t1, at_t1 = time.perf_counter(), self.counters()
         inserted = at_t1["inserted"]
         read1 = self.readings(groups)
         stopped = [g.stop() for g in groups]
         sent = sum(s for s, _ in stopped)
         self.settle(before["received"] + sent)
-        last = max(published.values(), default=time.time())
-        while time.time() < last + ACK_WAIT_S and any(len(receipts[v]) < len(names) for v in published):
+        deadline = time.time() + ACK_WAIT_S
+        while time.time() < deadline and acks.waiting:
             self.step()
-            self.take_acks(receipts)
+            self.take_acks(acks.add)
+        acks.close()
         after = self.counters()
         d = {k: after[k] - before[k] for k in after}
         window, chunk_len = t1 - t0, self.cfg.actor.chunk_len
 
-        # each broadcast x subscriber, and each broadcast to the last of the N
-        each, to_all, missed = [], [], 0
-        for version, at in published.items():
-            got = [receipts[version][n] for n in names if n in receipts[version]]
-            each += [(r - at) * 1e3 for r in got]
-            missed += len(names) - len(got)
-            if len(got) == len(names):
-                to_all.append((max(got) - at) * 1e3)
+        each, to_all = acks.each, acks.to_all  # each broadcast x subscriber; each broadcast to the last of the N
         result = {
             "window_s": round(window, 3),
             "transitions_per_s": (inserted - inserted0) / window,
@@ -207,13 +203,13 @@ class Learner:
             "inbox_waited": d["waited"],
             "rejected": d["rejected"],
             "send_lag_max_ms": max(lag for _, lag in stopped) * 1e3,
-            "broadcasts": len(published),
-            "weights_acks": len(each),
-            "weights_missed": missed,
-            "weights_latency_p50_ms": percentile(each, 50),
-            "weights_latency_p99_ms": percentile(each, 99),
-            "weights_all_p50_ms": percentile(to_all, 50),
-            "weights_all_p99_ms": percentile(to_all, 99),
+            "broadcasts": broadcasts_sent,
+            "weights_acks": each.count,
+            "weights_missed": acks.missed,
+            "weights_latency_p50_ms": each.percentile(50),
+            "weights_latency_p99_ms": each.percentile(99),
+            "weights_all_p50_ms": to_all.percentile(50),
+            "weights_all_p99_ms": to_all.percentile(99),
             "cpu_s": {k: read1[k][0] - read0[k][0] for k in read1},
             "rss_mb": {k: v[1] for k, v in read1.items()},
             "_latencies": each,

@@ -20,8 +20,6 @@ import time
 from dataclasses import replace
 from pathlib import Path
 
-import numpy as np
-
 from bench.transport_procs import ACTOR, episode_payloads, free_port, router_main, stamp
 from common import wire
 from common.config.transport import TransportConfig
@@ -269,10 +267,6 @@ def usage(pid: int) -> tuple[float, float]:
     cpu = (int(fields[11]) + int(fields[12])) / os.sysconf("SC_CLK_TCK")
     rss_kb = next(int(line.split()[1]) for line in Path(f"/proc/{pid}/status").open() if line.startswith("VmRSS:"))
     return cpu, rss_kb / 1024
-
-
-def percentile(values: list[float], p: float) -> float | None:
-    return float(np.percentile(values, p)) if values else None
 
 
 def stop_all(procs: list[mp.Process], timeout: float = 10.0) -> None:
