@@ -298,13 +298,18 @@ class LearningCore:
                 "action": uniform["action"],
                 "next": {
                     "phi": phi(v_next, nxt["speed"], nxt["last_action"]),
-                    "reward": nxt["reward"] * self.scale.reward_scale,
+                    "reward": self._reward(nxt),
                     "done": nxt["done"],
                     "terminated": nxt["terminated"],
                 },
             },
             batch_size=[uniform.shape[0]],
         )
+
+    def _reward(self, nxt: TensorDictBase) -> torch.Tensor:
+        """DDPG's reward: the env's, less `scale.crash_penalty` where the car left the lane, scaled."""
+        penalty = self.scale.crash_penalty * nxt["terminated"].to(nxt["reward"].dtype)
+        return (nxt["reward"] - penalty) * self.scale.reward_scale
 
     def _mirrored(self, batch: TensorDictBase) -> TensorDictBase:
         """`scale.mirror` of the items mirrored left-right, drawn independently per item."""
@@ -314,7 +319,7 @@ class LearningCore:
         return mirror(batch, mask.to(self.device))
 
     def _observation_batch(self, uniform: TensorDictBase) -> TensorDictBase:
-        uniform["next", "reward"] = uniform["next", "reward"] * self.scale.reward_scale
+        uniform["next", "reward"] = self._reward(uniform["next"])
         if self.nets.representation == "lowdim":
             for td in (uniform, uniform["next"]):
                 td["lowdim"] = torch.cat([td["alpha"], td["beta"]], -1)

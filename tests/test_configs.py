@@ -40,6 +40,7 @@ def test_bad_values_are_refused_naming_the_field(override, field):
     [
         ("agent.gvf_terminal=bounce", "gvf_terminal"),
         ("scale.reward_scale=0", "reward_scale"),
+        ("scale.crash_penalty=-1", "crash_penalty"),
         ("agent.rho_refresh_every=-1", "rho_refresh_every"),
         ("scale.crash_memory=-5", "crash_memory"),
         ("scale.lr_actor_decay_updates=-1", "lr_actor_decay_updates"),

@@ -340,6 +340,27 @@ def test_reward_scale_scales_the_critics_target(data, monkeypatch):
     assert seen[0].abs().max() > 0
 
 
+@pytest.mark.parametrize("agent", ["gvf_ddpg", "ddpg_image"])
+def test_crash_penalty_lowers_only_the_reward_of_lane_exits(data, monkeypatch, agent):
+    data = data[:300].clone()
+    data["next", "terminated"][::5] = True  # some lane exits in every minibatch
+    seen = []
+    for penalty in (0.0, 2.5):
+        scale = dataclasses.replace(TINY, crash_penalty=penalty, reward_scale=0.5)
+        core = LearningCore(AgentConfig(name=agent, metrics_every=1), scale, seed=0)
+        core.add(data)
+        loss = core.ddpg.loss
+        monkeypatch.setattr(
+            core.ddpg, "loss", lambda b: (seen.append(b["next"].select("reward", "terminated").clone()), loss(b))[1]
+        )
+        core.update()
+    base, penalised = seen
+    assert torch.equal(base["terminated"], penalised["terminated"]) and base["terminated"].any()
+    crashed = base["terminated"]
+    assert torch.allclose(penalised["reward"][crashed], base["reward"][crashed] - 0.5 * 2.5)
+    assert torch.equal(penalised["reward"][~crashed], base["reward"][~crashed])
+
+
 def test_td3_option_steps_the_actor_every_second_update_with_twin_critics_and_resumes(data):
     scale = dataclasses.replace(TINY, td3=True, td3_actor_delay=2)
     core = LearningCore(AgentConfig(name="gvf_ddpg", lr_actor=1e-3, metrics_every=2), scale, seed=0)

@@ -104,6 +104,9 @@ class ScaleConfig:
     beta negated; learner.mirror), as the paper augmented its Jackal data; 0 in its TORCS setup."""
     reward_scale: float = 1.0
     """DDPG's reward is multiplied by this (the paper scaled its reward so that action values lie in [-1, 1])."""
+    crash_penalty: float = 0.0
+    """Subtracted from DDPG's reward (before reward_scale) on a transition that leaves the lane
+    (terminated): the cost of a crash in one backup instead of the lost future reward alone; 0: the paper."""
     act_with_target: bool = False
     """Broadcast (act and evaluate with) DDPG's Polyak-averaged target actor instead of the online one."""
     crash_memory: int = 0
@@ -154,6 +157,8 @@ def check_scale(scale: ScaleConfig) -> None:
         raise ValueError(f"scale.mirror must be in [0, 1], got {scale.mirror}")
     if not scale.reward_scale > 0.0:
         raise ValueError(f"scale.reward_scale must be > 0, got {scale.reward_scale}")
+    if not scale.crash_penalty >= 0.0:
+        raise ValueError(f"scale.crash_penalty must be >= 0, got {scale.crash_penalty}")
     if scale.crash_memory < 0:
         raise ValueError(f"scale.crash_memory must be >= 0, got {scale.crash_memory}")
     if scale.crash_steps < 1:
