@@ -5,6 +5,8 @@ own bookkeeping, not the learner's; a memory run must not measure itself."""
 
 from __future__ import annotations
 
+from dataclasses import dataclass, field
+
 import numpy as np
 
 BIN_MS = 0.1
@@ -50,29 +52,37 @@ class Latencies:
         return float(sorted(x for x in self.beyond if x >= SPAN_MS)[rank - cumulative[-1] - 1])
 
 
+@dataclass
+class _Pending:
+    at: float
+    """time.time() just before the put."""
+    heard: set[str] = field(default_factory=set)
+    last: float = 0.0
+    """The latest arrival so far."""
+
+
 class Acks:
     """The acks of one phase: each (actor, version) arrival becomes a latency at once; a version
     is forgotten when every actor acked it, or counted as missed at `close`."""
 
     def __init__(self, names: list[str]) -> None:
         self.n = len(names)
-        self.pending: dict[int, tuple[float, set[str], list[float]]] = {}
+        self.pending: dict[int, _Pending] = {}
         self.each, self.to_all = Latencies(), Latencies()
         self.missed = 0
 
     def published(self, version: int, at: float) -> None:
-        self.pending[version] = (at, set(), [at])
+        self.pending[version] = _Pending(at, last=at)
 
     def add(self, name: str, version: int, arrived: float) -> None:
-        entry = self.pending.get(version)
-        if entry is None or name in entry[1]:
+        p = self.pending.get(version)
+        if p is None or name in p.heard:
             return  # a version of another phase, or a repeated ack
-        at, heard, last = entry
-        heard.add(name)
-        self.each.add((arrived - at) * 1e3)
-        last[0] = max(last[0], arrived)
-        if len(heard) == self.n:
-            self.to_all.add((last[0] - at) * 1e3)
+        p.heard.add(name)
+        self.each.add((arrived - p.at) * 1e3)
+        p.last = max(p.last, arrived)
+        if len(p.heard) == self.n:
+            self.to_all.add((p.last - p.at) * 1e3)
             del self.pending[version]
 
     @property
@@ -80,5 +90,5 @@ class Acks:
         return bool(self.pending)
 
     def close(self) -> None:
-        self.missed += sum(self.n - len(heard) for _, heard, _ in self.pending.values())
+        self.missed += sum(self.n - len(p.heard) for p in self.pending.values())
         self.pending.clear()
