@@ -45,6 +45,7 @@ from learner.gvf import cumulants, expand_gammas, gvf_loss, td_target
 from learner.insert_rho import RHO_SLICE, InsertRho
 from learner.metrics import prediction_error
 from learner.mirror import mirror
+from learner.nstep import nstep_columns
 from learner.replay import CrashMemory, ImportanceResamplingReplay, compact, expand, sample_uniform_with
 
 OBS_KEYS = ("image", "speed", "last_action")
@@ -80,6 +81,7 @@ class LearningCore:
         self.crashes = CrashMemory(scale.crash_memory) if scale.crash_memory else None
         self.generator = torch.Generator().manual_seed(seed)
         steps = step_sizes(agent, scale)
+        self.discount = steps["discount"]
         if self.predictive:
             self.gammas = expand_gammas(agent.gammas, len(agent.cumulants)).to(self.device)
             self.gvf_optimizer = torch.optim.Adam(self.nets.gvf.parameters(), lr=steps["lr_gvf"], fused=True)
@@ -160,6 +162,9 @@ class LearningCore:
             rho = self.insert_rho(transitions)
         else:
             rho = torch.ones(transitions.shape[0], 1, device=self.device)
+        if self.scale.n_step > 1:
+            transitions = transitions.clone(False)
+            transitions.update(nstep_columns(transitions, self.scale.n_step, self.discount))
         self.replay.extend(compact(transitions, rho).to("cpu"))
 
     def add_crashes(self, transitions: TensorDictBase) -> None:
@@ -172,7 +177,18 @@ class LearningCore:
     def _uniform(self) -> TensorDictBase:
         """The uniform minibatch U (replay and crash memory together), expanded and mirrored."""
         stored = sample_uniform_with(self.replay, self.crashes, self.batch_size)
-        return self._mirrored(expand(stored).to(self.device))
+        batch = expand(stored)
+        if self.scale.n_step > 1:  # DDPG's next state and reward become the n-step ones (learner.nstep)
+            batch["next"] = self._nstep_next(stored)
+            batch["steps_to_next_obs"] = stored["steps_to_next_obs"]
+        return self._mirrored(batch.to(self.device))
+
+    def _nstep_next(self, stored: TensorDictBase) -> TensorDictBase:
+        nxt = expand(self.replay.bootstrap(stored))["next"]
+        nxt["reward"] = stored["reward_n"]
+        nxt["terminated"], nxt["truncated"] = stored["terminated_n"], stored["truncated_n"]
+        nxt["done"] = nxt["terminated"] | nxt["truncated"]
+        return nxt
 
     @property
     def ready(self) -> bool:
@@ -292,23 +308,29 @@ class LearningCore:
         gvf, nxt = self.nets.gvf, uniform["next"]
         # separate calls for s and s': one 2n batch is slower on CPU
         v, v_next = gvf(*_obs(uniform)), gvf(*_obs(nxt))
-        return TensorDict(
+        batch = TensorDict(
             {
                 "phi": phi(v, uniform["speed"], uniform["last_action"]),
                 "action": uniform["action"],
                 "next": {
                     "phi": phi(v_next, nxt["speed"], nxt["last_action"]),
-                    "reward": self._reward(nxt),
+                    "reward": self._reward(nxt, uniform.get("steps_to_next_obs", None)),
                     "done": nxt["done"],
                     "terminated": nxt["terminated"],
                 },
             },
             batch_size=[uniform.shape[0]],
         )
+        if "steps_to_next_obs" in uniform.keys():  # n-step windows: torchrl's TD(0) raises gamma to m
+            batch["steps_to_next_obs"] = uniform["steps_to_next_obs"]
+        return batch
 
-    def _reward(self, nxt: TensorDictBase) -> torch.Tensor:
-        """DDPG's reward: the env's, less `scale.crash_penalty` where the car left the lane, scaled."""
+    def _reward(self, nxt: TensorDictBase, steps: Tensor | None = None) -> torch.Tensor:
+        """DDPG's reward: the env's, less `scale.crash_penalty` where the car left the lane, scaled;
+        with n-step returns (`steps` = m) the penalty is discounted to the window's last step."""
         penalty = self.scale.crash_penalty * nxt["terminated"].to(nxt["reward"].dtype)
+        if steps is not None:
+            penalty = penalty * self.discount ** (steps.to(penalty.dtype) - 1)
         return (nxt["reward"] - penalty) * self.scale.reward_scale
 
     def _mirrored(self, batch: TensorDictBase) -> TensorDictBase:
@@ -319,7 +341,7 @@ class LearningCore:
         return mirror(batch, mask.to(self.device))
 
     def _observation_batch(self, uniform: TensorDictBase) -> TensorDictBase:
-        uniform["next", "reward"] = self._reward(uniform["next"])
+        uniform["next", "reward"] = self._reward(uniform["next"], uniform.get("steps_to_next_obs", None))
         if self.nets.representation == "lowdim":
             for td in (uniform, uniform["next"]):
                 td["lowdim"] = torch.cat([td["alpha"], td["beta"]], -1)

@@ -4,7 +4,8 @@ A chunk of T steps becomes T transitions in torchrl's layout (see `learner.repla
 observation t is (frames[t+1], frames[t]); alpha and beta are observation-aligned (T+1), so
 step t's cumulants are alpha[t+1], beta[t+1] (the next state's, Algorithm 1 line 6). Chunks
 that carry the actor's log mu_hat (`learner.rho_at=actor`) give a "log_mu" column (NaN for
-those that do not).
+those that do not). "steps_left" counts each chunk's steps down to 1: the windows of n-step
+returns end there (learner.nstep).
 """
 
 from __future__ import annotations
@@ -14,6 +15,7 @@ import torch
 from tensordict import TensorDict
 
 from common.wire import TransitionChunk
+from learner.nstep import steps_left
 
 
 def chunks_to_transitions(chunks: list[TransitionChunk], next_image: bool = True) -> TensorDict:
@@ -59,6 +61,7 @@ def chunks_to_transitions(chunks: list[TransitionChunk], next_image: bool = True
                 "terminated": cat(lambda c: col(c.terminated)),
                 "truncated": cat(lambda c: col(c.truncated)),
             },
+            "steps_left": steps_left(steps),
         },
         batch_size=[total],
     )

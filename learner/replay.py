@@ -41,6 +41,8 @@ from tensordict import TensorDict, TensorDictBase
 from torch import Tensor
 from torchrl.data import LazyTensorStorage, PrioritizedSampler, TensorDictReplayBuffer
 
+from learner.nstep import NSTEP_KEYS
+
 PRIORITY_EPS = 1e-8
 
 
@@ -78,6 +80,8 @@ class ImportanceResamplingReplay:
         for chunk in data.split(self.capacity, 0):
             rho = chunk["rho"].detach().reshape(-1).to(torch.float64).cpu()
             index = self.buffer.extend(chunk).reshape(-1).cpu()
+            if "steps_to_next_obs" in chunk.keys():  # n-step bootstraps are found by slot order
+                _check_consecutive(index, self.capacity)
             self._rho_sum += float(rho.sum() - self.rho[index].sum())
             self.rho[index] = rho
             indices.append(index)
@@ -113,6 +117,12 @@ class ImportanceResamplingReplay:
         data = self.buffer.storage.get(index)
         data["index"] = index
         return data
+
+    def bootstrap(self, stored: TensorDictBase) -> TensorDictBase:
+        """The stored items whose next state is the n-step bootstrap state of `stored` (with
+        "index" and "steps_to_next_obs"): slot (index + m - 1) mod capacity (learner.nstep)."""
+        slot = (stored["index"].reshape(-1) + stored["steps_to_next_obs"].reshape(-1) - 1) % self.capacity
+        return self.buffer.storage.get(slot)
 
     def state_dict(self) -> dict[str, Any]:
         return {
@@ -163,6 +173,13 @@ def sample_uniform_with(replay: ImportanceResamplingReplay, crashes: CrashMemory
     return torch.cat([main, extra], 0)
 
 
+def _check_consecutive(index: Tensor, capacity: int) -> None:
+    """One insert must fill consecutive ring slots, or a bootstrap slot would name another item."""
+    expected = (index[:1] + torch.arange(index.numel())) % capacity
+    if not torch.equal(index, expected):
+        raise RuntimeError("the replay wrote one insert to non-consecutive slots: n-step bootstraps would break")
+
+
 def _first_occurrence(index: Tensor) -> tuple[Tensor, Tensor]:
     """Unique values of `index` and the position of each one's first occurrence."""
     unique, inverse = torch.unique(index, return_inverse=True)
@@ -196,6 +213,8 @@ def compact(transitions: TensorDictBase, rho: Tensor) -> TensorDict:
             "terminated": nxt["terminated"].bool(),
             "truncated": nxt["truncated"].bool(),
             "rho": rho.reshape(-1, 1).float(),
+            # the n-step columns where the learner computed them (scale.n_step > 1)
+            **{key: transitions[key] for key in NSTEP_KEYS if key in transitions.keys()},
         },
         batch_size=transitions.batch_size[:1],
     )

@@ -107,6 +107,9 @@ class ScaleConfig:
     crash_penalty: float = 0.0
     """Subtracted from DDPG's reward (before reward_scale) on a transition that leaves the lane
     (terminated): the cost of a crash in one backup instead of the lost future reward alone; 0: the paper."""
+    n_step: int = 1
+    """Steps of reward in DDPG's target before it bootstraps from Q' (learner.nstep; at most to
+    the end of the actor's chunk); 1: the paper's one-step target. The GVFs stay one-step."""
     act_with_target: bool = False
     """Broadcast (act and evaluate with) DDPG's Polyak-averaged target actor instead of the online one."""
     crash_memory: int = 0
@@ -159,6 +162,10 @@ def check_scale(scale: ScaleConfig) -> None:
         raise ValueError(f"scale.reward_scale must be > 0, got {scale.reward_scale}")
     if not scale.crash_penalty >= 0.0:
         raise ValueError(f"scale.crash_penalty must be >= 0, got {scale.crash_penalty}")
+    if scale.n_step < 1:
+        raise ValueError(f"scale.n_step must be >= 1, got {scale.n_step}")
+    if scale.n_step > 1 and scale.crash_memory:
+        raise ValueError("scale.n_step > 1 needs scale.crash_memory=0 (the crash memory keeps no bootstrap states)")
     if scale.crash_memory < 0:
         raise ValueError(f"scale.crash_memory must be >= 0, got {scale.crash_memory}")
     if scale.crash_steps < 1:
