@@ -6,11 +6,11 @@ Processes, all started with `spawn` (forking after zenoh is initialised hangs), 
   routers    `common.transport.zenoh_backend.run_router` on free ports. Topology 'router': one,
              for everyone. 'mesh': router A (the learner's) and router B connected to it (the
              actors'), configured by deploy/zenoh/router-mesh-{a,b}.json5 where present
-  actors     N emulated actors (bench/scale_procs.py): each one Zenoh session replaying valid
+  actors     N emulated actors (bench/support/scale_procs.py): each one Zenoh session replaying valid
              TransitionChunks (own key, own seq, congestion control BLOCK) at --rate chunks/s
              and acking every weights version with the time.time() it arrived. No simulator,
              no policy, not a process each: up to --per-process share one OS process
-  this one   the learner (bench/scale_learner.py): a real `LearnerService` whose `ingest()`
+  this one   the learner (bench/support/scale_learner.py): a real `LearnerService` whose `ingest()`
              (bounded inbox, strict decode, sequence gaps, insert with rho) runs in a loop with
              no training, publishing a Weights message of the real policy every
              --broadcast-every s, --broadcasts times
@@ -59,14 +59,14 @@ import time
 from pathlib import Path
 
 # run as a script, bench/ comes first on sys.path: the repository root goes there instead, so
-# that `bench.scale_procs` imports here and in the spawned processes that inherit it
+# that `bench.support.scale_procs` imports here and in the spawned processes that inherit it
 _HERE = Path(__file__).resolve().parent
 sys.path[:] = [p for p in sys.path if Path(p or ".").resolve() != _HERE]
 sys.path.insert(0, str(_HERE.parent))
 
-from bench.acks import Latencies  # noqa: E402
-from bench.scale_learner import Learner  # noqa: E402
-from bench.scale_procs import (  # noqa: E402
+from bench.support.acks import Latencies  # noqa: E402
+from bench.support.scale_learner import Learner  # noqa: E402
+from bench.support.scale_procs import (  # noqa: E402
     MESH_CONFIGS,
     TOPOLOGIES,
     actor_name,
@@ -74,8 +74,8 @@ from bench.scale_procs import (  # noqa: E402
     start_topology,
     stop_all,
 )
+from bench.support.transport_procs import episode_payloads  # noqa: E402
 from bench.transport import compose  # noqa: E402
-from bench.transport_procs import episode_payloads  # noqa: E402
 from common import wire  # noqa: E402
 
 LATENCY_P99_TARGET_MS = 100.0

@@ -38,9 +38,10 @@ from tensordict import TensorDict, TensorDictBase
 from torch import Tensor
 
 from common.config.agent import AgentConfig, ScaleConfig, step_sizes
-from common.networks import make_networks, phi
+from common.networks import make_networks
 from learner.behaviour import behaviour_loss
 from learner.ddpg import DDPG
+from learner.ddpg_batch import STEPS, ddpg_reward, observation_batch, phi_batch, with_nstep_next
 from learner.gvf import cumulants, expand_gammas, gvf_loss, td_target
 from learner.insert_rho import RHO_SLICE, InsertRho
 from learner.metrics import prediction_error
@@ -179,16 +180,8 @@ class LearningCore:
         stored = sample_uniform_with(self.replay, self.crashes, self.batch_size)
         batch = expand(stored)
         if self.scale.n_step > 1:  # DDPG's next state and reward become the n-step ones (learner.nstep)
-            batch["next"] = self._nstep_next(stored)
-            batch["steps_to_next_obs"] = stored["steps_to_next_obs"]
+            with_nstep_next(batch, stored, self.replay)
         return self._mirrored(batch.to(self.device))
-
-    def _nstep_next(self, stored: TensorDictBase) -> TensorDictBase:
-        nxt = expand(self.replay.bootstrap(stored))["next"]
-        nxt["reward"] = stored["reward_n"]
-        nxt["terminated"], nxt["truncated"] = stored["terminated_n"], stored["truncated_n"]
-        nxt["done"] = nxt["terminated"] | nxt["truncated"]
-        return nxt
 
     @property
     def ready(self) -> bool:
@@ -205,11 +198,12 @@ class LearningCore:
         self._before_update()
         uniform = self._uniform()
         losses: dict[str, Tensor] = {}
+        reward = ddpg_reward(uniform["next"], self.scale, self.discount, uniform.get(STEPS, None))
         if self.predictive:
             losses.update(self._representation_losses(uniform))
-            ddpg_batch = self._phi_batch(uniform)
+            ddpg_batch = phi_batch(self.nets.gvf, uniform, reward)
         else:
-            ddpg_batch = self._observation_batch(uniform)
+            ddpg_batch = observation_batch(uniform, reward, lowdim=self.nets.representation == "lowdim")
         loss_ddpg, out = self.ddpg.loss(ddpg_batch)
         return self._apply(loss_ddpg + sum(losses.values()), losses, out, ddpg_batch)
 
@@ -302,50 +296,12 @@ class LearningCore:
             "behaviour": behaviour_loss(self.nets.behaviour, _obs(uniform), uniform["action"], self.generator),
         }
 
-    @torch.no_grad()
-    def _phi_batch(self, uniform: TensorDictBase) -> TensorDict:
-        """DDPG's batch on U with phi(s) and phi(s') of the current GVFs, detached (section 3)."""
-        gvf, nxt = self.nets.gvf, uniform["next"]
-        # separate calls for s and s': one 2n batch is slower on CPU
-        v, v_next = gvf(*_obs(uniform)), gvf(*_obs(nxt))
-        batch = TensorDict(
-            {
-                "phi": phi(v, uniform["speed"], uniform["last_action"]),
-                "action": uniform["action"],
-                "next": {
-                    "phi": phi(v_next, nxt["speed"], nxt["last_action"]),
-                    "reward": self._reward(nxt, uniform.get("steps_to_next_obs", None)),
-                    "done": nxt["done"],
-                    "terminated": nxt["terminated"],
-                },
-            },
-            batch_size=[uniform.shape[0]],
-        )
-        if "steps_to_next_obs" in uniform.keys():  # n-step windows: torchrl's TD(0) raises gamma to m
-            batch["steps_to_next_obs"] = uniform["steps_to_next_obs"]
-        return batch
-
-    def _reward(self, nxt: TensorDictBase, steps: Tensor | None = None) -> torch.Tensor:
-        """DDPG's reward: the env's, less `scale.crash_penalty` where the car left the lane, scaled;
-        with n-step returns (`steps` = m) the penalty is discounted to the window's last step."""
-        penalty = self.scale.crash_penalty * nxt["terminated"].to(nxt["reward"].dtype)
-        if steps is not None:
-            penalty = penalty * self.discount ** (steps.to(penalty.dtype) - 1)
-        return (nxt["reward"] - penalty) * self.scale.reward_scale
-
     def _mirrored(self, batch: TensorDictBase) -> TensorDictBase:
         """`scale.mirror` of the items mirrored left-right, drawn independently per item."""
         if self.scale.mirror <= 0:
             return batch
         mask = torch.rand(batch.shape[0], generator=self.generator) < self.scale.mirror
         return mirror(batch, mask.to(self.device))
-
-    def _observation_batch(self, uniform: TensorDictBase) -> TensorDictBase:
-        uniform["next", "reward"] = self._reward(uniform["next"], uniform.get("steps_to_next_obs", None))
-        if self.nets.representation == "lowdim":
-            for td in (uniform, uniform["next"]):
-                td["lowdim"] = torch.cat([td["alpha"], td["beta"]], -1)
-        return uniform
 
     def _optimizers(self) -> list[torch.optim.Optimizer]:
         extra = [self.gvf_optimizer, self.behaviour_optimizer] if self.predictive else []

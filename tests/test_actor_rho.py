@@ -16,9 +16,9 @@ from common.wire_rules import check_chunk
 from learner.core import LearningCore
 from learner.ingest import chunks_to_transitions
 from learner.ingestor import Ingestor
+from tests.core_fixtures import TINY as TINY_SCALE
 from tests.helpers import run_inproc
 from tests.test_ingestor import inbox
-from tests.test_update import TINY as TINY_SCALE
 
 SCALE = TINY_SCALE
 

@@ -1,8 +1,8 @@
-"""bench/acks.py: the scale benchmark's weight-ack bookkeeping in constant memory."""
+"""bench/support/acks.py: the scale benchmark's weight-ack bookkeeping in constant memory."""
 
 import numpy as np
 
-from bench.acks import BIN_MS, SPAN_MS, Acks, Latencies
+from bench.support.acks import BIN_MS, SPAN_MS, Acks, Latencies
 
 
 def test_histogram_percentiles_match_the_exact_ones_to_a_bin():

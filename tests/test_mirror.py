@@ -13,9 +13,9 @@ from common.config.env import EnvConfig
 from learner.core import LearningCore
 from learner.mirror import mirror
 from learner.replay import compact, expand
+from tests.core_fixtures import TINY
 from tests.fakes import collect
 from tests.helpers import compose_run
-from tests.test_update import TINY
 
 
 @pytest.fixture(scope="module")

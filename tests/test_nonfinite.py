@@ -7,9 +7,9 @@ import torch
 
 from common import checkpoint
 from learner.service import LearnerService
+from tests.core_fixtures import make_core
 from tests.fakes import random_transitions
 from tests.helpers import TINY, compose_run
-from tests.test_update import make_core
 
 
 def _finite(module) -> bool:

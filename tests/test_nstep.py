@@ -11,8 +11,8 @@ from common.config.agent import AgentConfig, check_scale
 from learner.core import LearningCore
 from learner.ingest import chunks_to_transitions
 from learner.nstep import nstep_columns, steps_left
+from tests.core_fixtures import TINY, VARIANTS
 from tests.test_chunks import _collect
-from tests.test_update import TINY, VARIANTS
 
 
 def _chain(lengths, rewards, terminal_last=True):

@@ -12,8 +12,8 @@ from tensordict import TensorDict
 from common.config.agent import AgentConfig
 from common.dataset import FIELDS, Dataset, DatasetWriter
 from learner.offline import RepresentationTrainer, recorded_order
+from tests.core_fixtures import TINY
 from tests.test_gvf import GAMMAS, N_POS, WIDTH, behaviour_data, train, true_values
-from tests.test_update import TINY
 
 CHAIN_SCALE = dataclasses.replace(
     TINY, conv_channels=[2, 2, 2, 2, 2], gvf_hidden=[64, 64], batch_size=32, mirror=0.0, lr_gvf=3e-3, lr_behaviour=3e-3

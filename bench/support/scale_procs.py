@@ -3,7 +3,7 @@ process, the routers of each topology, and the CPU / memory readings of a proces
 
 An emulated actor is one Zenoh client session (its own link to the router) with one publisher
 on gvf/<run>/transitions/<name> (congestion control BLOCK) and one subscriber on the weights
-key. It replays a pre-encoded synthetic episode (`bench.transport_procs.episode_payloads`, the
+key. It replays a pre-encoded synthetic episode (`bench.support.transport_procs.episode_payloads`, the
 actor's name, seq and episode written into each put) at a fixed rate, and acks every weights
 version it decodes with the time.time() at which the sample arrived. It has no simulator and no
 policy, and it is not an OS process of its own: up to --per-process of them share one spawned
@@ -20,7 +20,7 @@ import time
 from dataclasses import replace
 from pathlib import Path
 
-from bench.transport_procs import ACTOR, episode_payloads, free_port, router_main, stamp
+from bench.support.transport_procs import ACTOR, episode_payloads, free_port, router_main, stamp
 from common import wire
 from common.config.transport import TransportConfig
 from common.keys import Keys

@@ -12,8 +12,8 @@ from collections import defaultdict
 
 import numpy as np
 
-from bench.acks import Acks
-from bench.scale_procs import usage
+from bench.support.acks import Acks
+from bench.support.scale_procs import usage
 from common import wire
 
 ACK_WAIT_S = 5.0

@@ -1,0 +1,1 @@
+"""Modules the benchmarks in bench/ share: processes, bookkeeping, summaries (no benchmark here)."""

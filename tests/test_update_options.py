@@ -1,0 +1,113 @@
+"""Options of the combined update beyond the paper (learner/core.py): acting with the target
+actor, reward scale, crash penalty, TD3, the crash memory; each off by default."""
+
+import copy
+import dataclasses
+
+import pytest
+import torch
+
+from common.config.agent import AgentConfig
+from learner.core import LearningCore
+from tests.core_fixtures import TINY, lanedrive_data
+
+
+@pytest.fixture(scope="module")
+def data():
+    return lanedrive_data()
+
+
+def test_act_with_target_broadcasts_the_polyak_averaged_actor(data):
+    scale = dataclasses.replace(TINY, act_with_target=True)
+    core = LearningCore(AgentConfig(name="gvf_ddpg", lr_actor=1e-2, metrics_every=100), scale, seed=0)
+    core.add(data[:300])
+    for _ in range(5):
+        core.update()
+    sent, online = core.policy_state_dict(), core.nets.policy.state_dict()
+    target = core.ddpg.loss_module.target_actor_network_params
+    key = "branches.0.0.weight"
+    assert torch.equal(sent[f"actor.{key}"], target[("module", *key.split("."))])
+    assert not torch.equal(sent[f"actor.{key}"], online[f"actor.{key}"])
+    assert all(torch.equal(sent[k], online[k]) for k in online if k.startswith("gvf."))  # no target GVF
+
+
+def test_reward_scale_scales_the_critics_target(data, monkeypatch):
+    seen = []
+    for reward_scale in (1.0, 0.01):
+        core = LearningCore(
+            AgentConfig(name="ddpg_image", metrics_every=1),
+            dataclasses.replace(TINY, reward_scale=reward_scale),
+            seed=0,
+        )
+        core.add(data[:300])
+        loss = core.ddpg.loss
+        monkeypatch.setattr(
+            core.ddpg, "loss", lambda batch: (seen.append(batch["next", "reward"].clone()), loss(batch))[1]
+        )
+        core.update()
+    assert torch.allclose(seen[1], 0.01 * seen[0])
+    assert seen[0].abs().max() > 0
+
+
+@pytest.mark.parametrize("agent", ["gvf_ddpg", "ddpg_image"])
+def test_crash_penalty_lowers_only_the_reward_of_lane_exits(data, monkeypatch, agent):
+    data = data[:300].clone()
+    data["next", "terminated"][::5] = True  # some lane exits in every minibatch
+    seen = []
+    for penalty in (0.0, 2.5):
+        scale = dataclasses.replace(TINY, crash_penalty=penalty, reward_scale=0.5)
+        core = LearningCore(AgentConfig(name=agent, metrics_every=1), scale, seed=0)
+        core.add(data)
+        loss = core.ddpg.loss
+        monkeypatch.setattr(
+            core.ddpg, "loss", lambda b: (seen.append(b["next"].select("reward", "terminated").clone()), loss(b))[1]
+        )
+        core.update()
+    base, penalised = seen
+    assert torch.equal(base["terminated"], penalised["terminated"]) and base["terminated"].any()
+    crashed = base["terminated"]
+    assert torch.allclose(penalised["reward"][crashed], base["reward"][crashed] - 0.5 * 2.5)
+    assert torch.equal(penalised["reward"][~crashed], base["reward"][~crashed])
+
+
+def test_td3_option_steps_the_actor_every_second_update_with_twin_critics_and_resumes(data):
+    scale = dataclasses.replace(TINY, td3=True, td3_actor_delay=2)
+    core = LearningCore(AgentConfig(name="gvf_ddpg", lr_actor=1e-3, metrics_every=2), scale, seed=0)
+    core.add(data[:300])
+    twins = core.ddpg.loss_module.qvalue_network_params
+    first = twins["module", "branches", "0", "0", "weight"]
+    assert first.shape[0] == 2 and not torch.allclose(first[0], first[1])  # two critics, two starts
+    actor = [copy.deepcopy(core.nets.actor.state_dict())]
+    for _ in range(4):
+        core.update()
+        actor.append(copy.deepcopy(core.nets.actor.state_dict()))
+    moved = [any(not torch.equal(a[k], b[k]) for k in a) for a, b in zip(actor, actor[1:])]
+    assert moved == [False, True, False, True]
+    resumed = LearningCore(AgentConfig(name="gvf_ddpg", lr_actor=1e-3, metrics_every=2), scale, seed=1)
+    resumed.load_state_dict(copy.deepcopy(core.state_dict(with_replay=True)))
+    for c in (core, resumed):
+        torch.manual_seed(5)  # torchrl draws the target-smoothing noise from the global generator
+        c.update()
+        c.update()
+    assert all(torch.equal(v, resumed.nets.actor.state_dict()[k]) for k, v in core.nets.actor.state_dict().items())
+    assert (core.ddpg.loss_module.qvalue_network_params == resumed.ddpg.loss_module.qvalue_network_params).all()
+
+
+def test_the_crash_memory_feeds_the_uniform_batch_after_the_replay_evicted_its_crashes(data):
+    scale = dataclasses.replace(TINY, crash_memory=40)
+    core = LearningCore(AgentConfig(name="gvf_ddpg", metrics_every=1), scale, seed=0)
+    calm, crash = data[1:], data[:1].clone()
+    crash["next", "reward"] = torch.full((1, 1), -7.0)  # marks the one crash transition
+    crash["next", "terminated"] = torch.ones(1, 1, dtype=torch.bool)
+    core.add(crash)
+    core.add_crashes(crash)
+    core.add(calm[:300])  # the ring of 300 evicted the crash
+    assert not bool((core.replay.buffer.storage.get(torch.arange(300))["reward"] == -7).any())
+    seen = [core._uniform()["next", "reward"] for _ in range(40)]  # 640 draws, 1/301 each: ~2 crashes
+    assert any(bool((r == -7).any()) for r in seen)
+    assert core.update()["train/crash_memory_size"] == 1.0
+    state = core.state_dict(with_replay=True)
+    resumed = LearningCore(AgentConfig(name="gvf_ddpg"), scale, seed=0)
+    resumed.load_state_dict(state)
+    assert len(resumed.crashes) == 1
+    assert LearningCore(AgentConfig(name="gvf_ddpg"), TINY).crashes is None  # 0: the paper's single replay
