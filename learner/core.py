@@ -14,7 +14,8 @@ discriminator for the incoming transitions and stores them in the shared replay.
 
 The three v(.) evaluations without gradient (v(s') on A, phi(s) and phi(s') on U) are the
 only network work beyond one forward/backward per network. All losses touch disjoint
-parameters, so one backward serves them all.
+parameters, so one backward serves them all. With `scale.n_step` > 1 DDPG's next state and
+reward on U are its n-step window's (learner.nstep, learner.ddpg_batch); the GVFs stay one-step.
 
 rho is computed at insert with the g of that moment (Algorithm 1), which makes two kinds of
 stale ratio: the warm-up's, inserted before any update trained g (rho ~55 where a fitted g
