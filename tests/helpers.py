@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import json
 import os
 import socket
 import subprocess
@@ -11,6 +12,7 @@ from pathlib import Path
 from common.cli import compose_run  # noqa: F401  (the tests' way to compose conf/)
 
 BIN = Path(sys.executable).parent
+ROOT = Path(__file__).resolve().parents[1]
 
 # A config small enough for tests on 2 cores: tiny warm-up and frequent weights.
 TINY = [
@@ -68,3 +70,19 @@ def stop(proc: subprocess.Popen, timeout: float = 20.0) -> int:
             proc.kill()
             proc.wait(10)
     return proc.returncode
+
+
+def run_bench(name: str, args: list[str], timeout: float) -> dict:
+    """Run `bench/<name>.py` with `args` (one torch thread per process) and return the JSON object
+    of its last line; a non-zero exit fails with the end of its stderr."""
+    env = {**os.environ, "OMP_NUM_THREADS": "1", "PYTHONUNBUFFERED": "1"}
+    proc = subprocess.run(
+        [sys.executable, str(ROOT / "bench" / f"{name}.py"), *args],
+        cwd=ROOT,
+        env=env,
+        capture_output=True,
+        text=True,
+        timeout=timeout,
+    )
+    assert proc.returncode == 0, proc.stderr[-3000:]
+    return json.loads(proc.stdout.strip().splitlines()[-1])

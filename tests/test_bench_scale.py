@@ -5,14 +5,11 @@ rate, and every broadcast acked. No timing assertions."""
 
 import json
 import math
-import os
-import subprocess
-import sys
-from pathlib import Path
 
 import pytest
 
-ROOT = Path(__file__).resolve().parents[1]
+from tests.helpers import run_bench
+
 TINY = [
     "--actors",
     "1",
@@ -68,17 +65,7 @@ def positive(x) -> bool:
 
 def test_bench_scale_prints_its_figures_as_json():
     pytest.importorskip("zenoh")
-    env = {**os.environ, "OMP_NUM_THREADS": "1", "PYTHONUNBUFFERED": "1"}
-    proc = subprocess.run(
-        [sys.executable, str(ROOT / "bench" / "scale.py"), *TINY],
-        cwd=ROOT,
-        env=env,
-        capture_output=True,
-        text=True,
-        timeout=600,
-    )
-    assert proc.returncode == 0, proc.stderr[-3000:]
-    result = json.loads(proc.stdout.strip().splitlines()[-1])
+    result = run_bench("scale", TINY, timeout=600)
     for topology in ("router", "mesh"):
         for n, case in result[topology].items():
             print(f"scale {topology} N={n}:", json.dumps({k: v for k, v in case.items() if k != "phases"}))

@@ -1,16 +1,12 @@
 """Smoke test of bench/transport.py: a tiny run end to end (router, producer, learner, actors);
 its last line is the JSON result with every figure present and positive. No timing assertions."""
 
-import json
 import math
-import os
-import subprocess
-import sys
-from pathlib import Path
 
 import pytest
 
-ROOT = Path(__file__).resolve().parents[1]
+from tests.helpers import run_bench
+
 TINY = [
     "--seconds",
     "0.3",
@@ -42,17 +38,7 @@ POSITIVE = [
 
 def test_bench_transport_prints_its_figures_as_json():
     pytest.importorskip("zenoh")
-    env = {**os.environ, "OMP_NUM_THREADS": "1", "PYTHONUNBUFFERED": "1"}
-    proc = subprocess.run(
-        [sys.executable, str(ROOT / "bench" / "transport.py"), *TINY],
-        cwd=ROOT,
-        env=env,
-        capture_output=True,
-        text=True,
-        timeout=180,
-    )
-    assert proc.returncode == 0, proc.stderr[-3000:]
-    result = json.loads(proc.stdout.strip().splitlines()[-1])
+    result = run_bench("transport", TINY, timeout=180)
     for key in POSITIVE:
         assert isinstance(result[key], (int, float)) and math.isfinite(result[key]) and result[key] > 0, key
     assert isinstance(result["meets_ratio_target"], bool) and isinstance(result["meets_50k_goal"], bool)
