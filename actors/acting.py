@@ -18,10 +18,8 @@ from common.config.agent import AgentConfig, ScaleConfig
 from common.config.run import ActorConfig
 from common.density import log_mu_hat
 from common.networks import BehaviourNetwork, make_policy
-from common.wire import RejectCounter, TransitionChunk, Weights, WireError
+from common.wire import AVERAGE, BEHAVIOUR, RejectCounter, TransitionChunk, Weights, WireError
 from common.wire_rules import check_weights
-
-BEHAVIOUR = "behaviour."  # prefix of the discriminator's tensors in a weights message
 
 
 def _tensors(arrays: dict) -> dict[str, torch.Tensor]:
@@ -33,7 +31,9 @@ def _tensors(arrays: dict) -> dict[str, torch.Tensor]:
 class Acting:
     """Batched policy inference with per-env OU exploration (paper: theta 1.0, sigma 0.1, dt 0.01)."""
 
-    def __init__(self, agent: AgentConfig, scale: ScaleConfig, actor: ActorConfig, n_envs: int, seed: int) -> None:
+    def __init__(
+        self, agent: AgentConfig, scale: ScaleConfig, actor: ActorConfig, n_envs: int, seed: int, deployed: bool = False
+    ) -> None:
         self.policy = make_policy(agent, scale).eval()
         self.lowdim = agent.representation == "lowdim"
         self.noise = OrnsteinUhlenbeck(n_envs, 2, theta=actor.ou_theta, sigma=actor.ou_sigma, dt=actor.ou_dt, seed=seed)
@@ -42,6 +42,9 @@ class Acting:
         self._behaviour_shape = (scale.conv_channels, scale.behaviour_hidden)
         self.behaviour: BehaviourNetwork | None = None
         """The broadcast discriminator, once weights carried one."""
+        self.deployed = deployed
+        """Load the averaged policy (`AVERAGE` tensors, `scale.policy_average`) where weights carry
+        one: the evaluator drives the policy a checkpoint keeps; actors explore with the online one."""
 
     @property
     def ready(self) -> bool:
@@ -54,7 +57,10 @@ class Acting:
         WireError('weights') before anything is loaded (`common.wire_rules.check_weights`)."""
         if weights.epoch == self.epoch and weights.version <= self.version:
             return False
-        policy = {k: v for k, v in weights.tensors.items() if not k.startswith(BEHAVIOUR)}
+        policy = {k: v for k, v in weights.tensors.items() if not k.startswith((BEHAVIOUR, AVERAGE))}
+        average = {k[len(AVERAGE) :]: v for k, v in weights.tensors.items() if k.startswith(AVERAGE)}
+        if self.deployed and average:
+            policy = average
         behaviour = {k[len(BEHAVIOUR) :]: v for k, v in weights.tensors.items() if k.startswith(BEHAVIOUR)}
         check_weights(dataclasses.replace(weights, tensors=policy), self.policy.state_dict())
         g = None

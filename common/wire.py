@@ -25,6 +25,8 @@ import numpy as np
 from common import wire_checks as chk
 from common.wire_checks import KINDS, Limits, WireError
 from common.wire_messages import (
+    AVERAGE,
+    BEHAVIOUR,
     Control,
     EpisodeSummary,
     Message,
@@ -36,6 +38,8 @@ from common.wire_messages import (
 
 __all__ = [
     "SCHEMA_VERSION",
+    "AVERAGE",
+    "BEHAVIOUR",
     "KINDS",
     "Limits",
     "WireError",

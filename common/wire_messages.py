@@ -11,6 +11,9 @@ from typing import Union
 
 import numpy as np
 
+BEHAVIOUR = "behaviour."  # Weights: prefix of the discriminator's tensors
+AVERAGE = "average."  # Weights: prefix of the averaged policy's tensors
+
 
 @dataclass(frozen=True, eq=False)
 class TransitionChunk:
@@ -71,7 +74,9 @@ class EpisodeSummary:
 
 @dataclass(frozen=True, eq=False)
 class Weights:
-    """A version of the acting networks' parameters: name -> float array."""
+    """A version of the acting networks' parameters: name -> float array. Names under
+    `BEHAVIOUR` are the discriminator's (`learner.rho_at=actor`), under `AVERAGE` the averaged
+    policy's (`scale.policy_average`), the rest the online policy's."""
 
     version: int
     tensors: dict[str, np.ndarray] = field(default_factory=dict)

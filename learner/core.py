@@ -40,14 +40,16 @@ from torch import Tensor
 
 from common.config.agent import AgentConfig, ScaleConfig, step_sizes
 from common.networks import make_networks
+from common.wire import AVERAGE, BEHAVIOUR
 from learner.behaviour import behaviour_loss
 from learner.ddpg import DDPG
 from learner.ddpg_batch import STEPS, ddpg_reward, observation_batch, phi_batch, with_nstep_next
 from learner.gvf import cumulants, expand_gammas, gvf_loss, td_target
 from learner.insert_rho import RHO_SLICE, InsertRho
-from learner.metrics import prediction_error
+from learner.metrics import actor_diagnostics, ddpg_metrics, prediction_error
 from learner.mirror import mirror
 from learner.nstep import nstep_columns
+from learner.policy_average import PolicyAverage
 from learner.replay import CrashMemory, ImportanceResamplingReplay, compact, expand, sample_uniform_with
 
 OBS_KEYS = ("image", "speed", "last_action")
@@ -117,6 +119,7 @@ class LearningCore:
         self.insert_rho = InsertRho(agent, self.nets.behaviour) if self.predictive else None
         self.skipped_nonfinite = 0
         """Updates skipped because their loss or a gradient was not finite."""
+        self.average = PolicyAverage(self.nets.policy, scale.policy_average) if scale.policy_average else None
 
     # --- Algorithm 1, lines 8-10 -------------------------------------------------------
     def rho(self, td: TensorDictBase) -> tuple[Tensor, Tensor]:
@@ -243,7 +246,7 @@ class LearningCore:
             return {}
         report = (self.updates + 1) % self.agent.metrics_every == 0
         if report and ddpg_batch is not None:  # before the step: the gradient and actions that made it
-            losses.update(self._diagnostics(ddpg_batch))
+            losses.update(actor_diagnostics(self.nets.actor, self.ddpg.loss_module.actor_network, ddpg_batch))
         self._step(ddpg=ddpg_batch is not None)
         self.updates += 1
         if not report:
@@ -261,20 +264,6 @@ class LearningCore:
             if p.grad is not None
         ]
         return bool(torch.isfinite(total + torch.nn.utils.get_total_norm(grads)))
-
-    @torch.no_grad()
-    def _diagnostics(self, ddpg_batch: TensorDictBase) -> dict[str, Tensor]:
-        """Actor gradient norm and how often its output sits at a bound (|a| > 0.99), per action."""
-        grads = [p.grad for p in self.nets.actor.parameters() if p.grad is not None]
-        action = self.ddpg.loss_module.actor_network(ddpg_batch.select(*self.ddpg.loss_module.actor_network.in_keys))[
-            "action"
-        ]
-        saturated = (action.abs() > 0.99).float().mean(0)
-        return {
-            "diag/actor_grad_norm": torch.nn.utils.get_total_norm(grads),
-            "diag/saturated_steering": saturated[0],
-            "diag/saturated_speed": saturated[1],
-        }
 
     def _representation_losses(self, uniform: TensorDictBase) -> dict[str, Tensor]:
         """Lines 11-17: the GVFs' TD loss on A ~ rho, the discriminator's BCE on U."""
@@ -318,16 +307,13 @@ class LearningCore:
             self.behaviour_optimizer.step()
         if ddpg:
             self.ddpg.step()  # critic, actor (every td3_actor_delay-th with td3), then the targets
+            if self.average is not None:
+                self.average.update(self.nets.policy)
 
     def _metrics(self, losses: dict[str, Tensor], out: TensorDictBase | None) -> dict[str, float]:
         metrics = {name if "/" in name else f"losses/{name}": float(value.detach()) for name, value in losses.items()}
         if out is not None:  # DDPG's part of the update
-            q = out["pred_value"].detach()
-            metrics["losses/actor"] = float(out["loss_actor"].detach())
-            metrics["losses/critic"] = float(out["loss_value"].detach())
-            metrics["train/q_mean"] = float(q.mean())
-            metrics["train/q_target_mean"] = float(out["target_value"].detach().mean())
-            metrics["train/q_min"], metrics["train/q_max"] = float(q.min()), float(q.max())
+            metrics.update(ddpg_metrics(out))
         metrics["train/updates"] = float(self.updates)
         metrics["train/replay_size"] = float(len(self.replay))
         if self.crashes is not None:
@@ -358,15 +344,21 @@ class LearningCore:
         with loss.target_actor_network_params.to_module(loss.actor_network):
             return {k: v.detach().clone() for k, v in self.nets.policy.state_dict().items()}
 
+    def deployed_state_dict(self) -> dict[str, Tensor]:
+        """The policy a checkpoint keeps and the evaluator drives: `scale.policy_average`'s, else the acting one."""
+        return self.average.policy_state_dict() if self.average is not None else self.policy_state_dict()
+
     def broadcast_state_dict(self, with_behaviour: bool = False) -> dict[str, Tensor]:
-        """What the weights message carries: the acting network, and with `with_behaviour`
-        (`learner.rho_at=actor`) the discriminator under `behaviour.` names, for actors that
-        compute log mu_hat (actors.acting.Acting.with_log_mu)."""
+        """What the weights message carries: the acting network, the averaged one under `average.`
+        names (`scale.policy_average`), and with `with_behaviour` (`learner.rho_at=actor`) the
+        discriminator under `behaviour.` names, for actors that compute log mu_hat."""
         state = dict(self.policy_state_dict())
+        if self.average is not None:
+            state.update({f"{AVERAGE}{k}": v for k, v in self.average.policy_state_dict().items()})
         if with_behaviour:
             if not self.predictive:
                 raise ValueError("learner.rho_at=actor needs a GVF variant: this agent has no discriminator")
-            state.update({f"behaviour.{k}": v for k, v in self.nets.behaviour.state_dict().items()})
+            state.update({f"{BEHAVIOUR}{k}": v for k, v in self.nets.behaviour.state_dict().items()})
         return state
 
     def state_dict(self, with_replay: bool = False) -> dict[str, Any]:
@@ -374,6 +366,8 @@ class LearningCore:
         state["ddpg"] = self.ddpg.state_dict()
         state["updates"] = self.updates
         state["generator"] = self.generator.get_state()
+        if self.average is not None:
+            state["policy_average"] = self.average.state_dict()
         if self.predictive:
             state["gvf_optimizer"] = self.gvf_optimizer.state_dict()
             state["behaviour_optimizer"] = self.behaviour_optimizer.state_dict()
@@ -390,6 +384,8 @@ class LearningCore:
         self.updates = state["updates"]
         self.warm = self.updates > 0
         self.generator.set_state(state["generator"])
+        if self.average is not None and "policy_average" in state:
+            self.average.load_state_dict(state["policy_average"])
         if self.predictive:
             self.gvf_optimizer.load_state_dict(state["gvf_optimizer"])
             self.behaviour_optimizer.load_state_dict(state["behaviour_optimizer"])

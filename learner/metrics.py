@@ -84,3 +84,30 @@ def prediction_error(
         out[f"eval/gvf_return_rmse_{name}"] = float(model.sqrt())
         out[f"eval/constant_return_rmse_{name}"] = float(constant.sqrt())
     return out
+
+
+def ddpg_metrics(out: TensorDictBase) -> dict[str, float]:
+    """DDPG's losses and Q statistics from its loss output (`learner.ddpg.DDPG.loss`)."""
+    q = out["pred_value"].detach()
+    return {
+        "losses/actor": float(out["loss_actor"].detach()),
+        "losses/critic": float(out["loss_value"].detach()),
+        "train/q_mean": float(q.mean()),
+        "train/q_target_mean": float(out["target_value"].detach().mean()),
+        "train/q_min": float(q.min()),
+        "train/q_max": float(q.max()),
+    }
+
+
+@torch.no_grad()
+def actor_diagnostics(actor: torch.nn.Module, acting: Callable, batch: TensorDictBase) -> dict[str, Tensor]:
+    """The actor's gradient norm and how often its output sits at a bound (|a| > 0.99), per action;
+    `acting` is the actor's TensorDict module (reads its in_keys from `batch`)."""
+    grads = [p.grad for p in actor.parameters() if p.grad is not None]
+    action = acting(batch.select(*acting.in_keys))["action"]
+    saturated = (action.abs() > 0.99).float().mean(0)
+    return {
+        "diag/actor_grad_norm": torch.nn.utils.get_total_norm(grads),
+        "diag/saturated_steering": saturated[0],
+        "diag/saturated_speed": saturated[1],
+    }

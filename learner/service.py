@@ -95,7 +95,7 @@ class LearnerService:
         """A checkpoint of everything (common.checkpoint's layout), never of non-finite weights."""
         # the layout of common.checkpoint: what an evaluator reads without the learner, then ours
         state = checkpoint.policy_entries(
-            self.core.policy_state_dict(), self.cfg.agent, self.cfg.scale, self.core.updates
+            self.core.deployed_state_dict(), self.cfg.agent, self.cfg.scale, self.core.updates
         )
         counters = {**self.intake.counters, "flow_pauses": self.flow_pauses}
         state.update(

@@ -91,7 +91,7 @@ def run_evaluator(cfg: RunConfig, t, run_dir: str | Path, stop: threading.Event)
     # torch's default (a thread per core) fights the simulators for the cores: one TORCS evaluation of
     # 54 steps took 20 s with 2 threads, 2.9 s with 1, on the 2 loaded cores here
     torch.set_num_threads(cfg.actor.torch_threads)
-    acting = Acting(cfg.agent, cfg.scale, cfg.actor, 1, seed=0)
+    acting = Acting(cfg.agent, cfg.scale, cfg.actor, 1, seed=0, deployed=True)
     rejects = wire.RejectCounter()
     writer = SummaryWriter(str(Path(run_dir) / "tb" / "eval"))
     due = every

@@ -112,6 +112,10 @@ class ScaleConfig:
     the end of the actor's chunk); 1: the paper's one-step target. The GVFs stay one-step."""
     act_with_target: bool = False
     """Broadcast (act and evaluate with) DDPG's Polyak-averaged target actor instead of the online one."""
+    policy_average: float = 0.0
+    """Rate of an exponential moving average of the acting network, stepped every update
+    (learner.policy_average): the evaluator drives it and checkpoints keep it, the actors still
+    explore with the online policy; 0: none (the paper deploys the online policy)."""
     crash_memory: int = 0
     """Capacity (transitions) of a second replay that keeps the last `crash_steps` steps before each
     termination after the main ring evicted them; DDPG and g sample both together (learner.replay); 0: none, the paper."""
@@ -166,6 +170,8 @@ def check_scale(scale: ScaleConfig) -> None:
         raise ValueError(f"scale.n_step must be >= 1, got {scale.n_step}")
     if scale.n_step > 1 and scale.crash_memory:
         raise ValueError("scale.n_step > 1 needs scale.crash_memory=0 (the crash memory keeps no bootstrap states)")
+    if not 0.0 <= scale.policy_average < 1.0:
+        raise ValueError(f"scale.policy_average must be in [0, 1), got {scale.policy_average}")
     if scale.crash_memory < 0:
         raise ValueError(f"scale.crash_memory must be >= 0, got {scale.crash_memory}")
     if scale.crash_steps < 1:
