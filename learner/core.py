@@ -12,19 +12,18 @@ discriminator for the incoming transitions and stores them in the shared replay.
   discriminator BCE step on U, half of its actions replaced by eta  (lines 16-17)
   DDPG step on U with phi = [v(s), speed, last action], detached    (section 3)
 
-The three v(.) evaluations without gradient (v(s') on A, phi(s) and phi(s') on U) are the
-only network work beyond one forward/backward per network. All losses touch disjoint
-parameters, so one backward serves them all. With `scale.n_step` > 1 DDPG's next state and
-reward on U are its n-step window's (learner.nstep, learner.ddpg_batch); the GVFs stay one-step.
+The v(.) evaluations without gradient (v(s') on A, clamped to +-max |c| by default
+(`ReturnBound`), phi(s) and phi(s') on U) are the only network work beyond one forward/backward
+per network; the losses touch disjoint parameters, so one backward serves them all.
+`scale.n_step` > 1: DDPG's next state and reward on U are an n-step window's (learner.nstep).
 
 rho is computed at insert with the g of that moment (Algorithm 1), which makes two kinds of
 stale ratio: the warm-up's, inserted before any update trained g (rho ~55 where a fitted g
 gives ~1, so that block held most of the GVF sampling mass until evicted), and every item's
 as g moves on. Hence (`AgentConfig`): before the first update g alone takes
 `behaviour_warmup_updates` steps on the warm-up data and then every stored rho is
-recomputed (`refresh_all_rho`, batched, rho_bar made exact), and so again every
-`rho_refresh_every` updates. `refresh_rho` (default off) also rewrites the rho of each GVF
-minibatch after it is drawn.
+recomputed (`refresh_all_rho`, batched, rho_bar exact), and again every `rho_refresh_every`
+updates; `refresh_rho` (default off) also rewrites the rho of each GVF minibatch after it is drawn.
 
 Variants (`AgentConfig.representation`): predictive (gvf_ddpg, _g0, _g095) trains all
 three parts; image and lowdim (the DDPG baselines) train DDPG alone, rho = 1.
@@ -44,7 +43,7 @@ from common.wire import AVERAGE, BEHAVIOUR
 from learner.behaviour import behaviour_loss
 from learner.ddpg import DDPG
 from learner.ddpg_batch import STEPS, ddpg_reward, observation_batch, phi_batch, with_nstep_next
-from learner.gvf import cumulants, expand_gammas, gvf_loss, td_target
+from learner.gvf import ReturnBound, cumulants, expand_gammas, gvf_loss, td_target
 from learner.insert_rho import RHO_SLICE, InsertRho
 from learner.metrics import actor_diagnostics, ddpg_metrics, prediction_error
 from learner.mirror import mirror
@@ -120,6 +119,8 @@ class LearningCore:
         self.skipped_nonfinite = 0
         """Updates skipped because their loss or a gradient was not finite."""
         self.average = PolicyAverage(self.nets.policy, scale.policy_average) if scale.policy_average else None
+        bounded = self.predictive and agent.gvf_bootstrap_bound  # learner.gvf.ReturnBound
+        self.bound = ReturnBound(len(agent.cumulants), self.device) if bounded else None
 
     # --- Algorithm 1, lines 8-10 -------------------------------------------------------
     def rho(self, td: TensorDictBase) -> tuple[Tensor, Tensor]:
@@ -163,10 +164,10 @@ class LearningCore:
         with a finite "log_mu" (the actors' log mu_hat, `learner.rho_at=actor`) take rho from it:
         only tau is computed here; the others run the discriminator."""
         transitions = transitions.to(self.device)
-        if self.predictive:
-            rho = self.insert_rho(transitions)
-        else:
-            rho = torch.ones(transitions.shape[0], 1, device=self.device)
+        if self.bound is not None:
+            self.bound.update(transitions["next"], self.agent.cumulants)
+        ones = torch.ones(transitions.shape[0], 1, device=self.device)
+        rho = self.insert_rho(transitions) if self.predictive else ones
         if self.scale.n_step > 1:
             transitions = transitions.clone(False)
             transitions.update(nstep_columns(transitions, self.scale.n_step, self.discount))
@@ -280,6 +281,7 @@ class LearningCore:
             v_next,
             self.gammas,
             self.agent.gvf_terminal,
+            None if self.bound is None else self.bound.max_abs,
         )
         return {
             "td": gvf_loss(self.nets.gvf(*_obs(batch)), target, self.replay.rho_bar),
@@ -363,11 +365,11 @@ class LearningCore:
 
     def state_dict(self, with_replay: bool = False) -> dict[str, Any]:
         state = {name: module.state_dict() for name, module in self.nets.modules().items()}
-        state["ddpg"] = self.ddpg.state_dict()
-        state["updates"] = self.updates
-        state["generator"] = self.generator.get_state()
+        state.update(ddpg=self.ddpg.state_dict(), updates=self.updates, generator=self.generator.get_state())
         if self.average is not None:
             state["policy_average"] = self.average.state_dict()
+        if self.bound is not None:
+            state["return_bound"] = self.bound.max_abs
         if self.predictive:
             state["gvf_optimizer"] = self.gvf_optimizer.state_dict()
             state["behaviour_optimizer"] = self.behaviour_optimizer.state_dict()
@@ -386,6 +388,8 @@ class LearningCore:
         self.generator.set_state(state["generator"])
         if self.average is not None and "policy_average" in state:
             self.average.load_state_dict(state["policy_average"])
+        if self.bound is not None:  # an older checkpoint has none: the bound grows back as data arrives
+            self.bound.max_abs = state.get("return_bound", self.bound.max_abs).to(self.device)
         if self.predictive:
             self.gvf_optimizer.load_state_dict(state["gvf_optimizer"])
             self.behaviour_optimizer.load_state_dict(state["behaviour_optimizer"])

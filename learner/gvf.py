@@ -71,13 +71,19 @@ def expand_gammas(gammas: Sequence[float] | Tensor, n_cumulants: int) -> Tensor:
 
 
 def td_target(
-    cumulant: Tensor, terminated: Tensor, next_predictions: Tensor, gammas: Tensor, terminal: str = "zero"
+    cumulant: Tensor,
+    terminated: Tensor,
+    next_predictions: Tensor,
+    gammas: Tensor,
+    terminal: str = "zero",
+    bound: Tensor | None = None,
 ) -> Tensor:
     """y = (1 - gamma) c_{t+1} + gamma b_{t+1} for every (cumulant, gamma), where b is v(s_{t+1})
     without gradient, or at a termination c_{t+1} ("absorbing") or 0 ("zero").
 
     cumulant (B, C); terminated (B, 1) bool; next_predictions (B, C*G); gammas (C*G,) from
-    `expand_gammas`.
+    `expand_gammas`; `bound` (C,), if given, clamps v(s_{t+1}) to +-bound per cumulant
+    (`ReturnBound`): a (1 - gamma)-scaled return of a cumulant with |c| <= M lies in [-M, M].
     """
     if terminal not in TERMINALS:
         raise ValueError(f"terminal must be one of {TERMINALS}, got {terminal!r}")
@@ -85,8 +91,26 @@ def td_target(
     c = cumulant.repeat_interleave(n_gammas, dim=-1)
     ended = terminated.reshape(-1, 1).bool()
     after = c if terminal == "absorbing" else torch.zeros_like(c)
-    bootstrap = torch.where(ended, after, next_predictions.detach())
+    v_next = next_predictions.detach()
+    if bound is not None:
+        limit = bound.repeat_interleave(n_gammas)
+        v_next = torch.maximum(torch.minimum(v_next, limit), -limit)
+    bootstrap = torch.where(ended, after, v_next)
     return (1.0 - gammas) * c + gammas * bootstrap
+
+
+class ReturnBound:
+    """The largest |c| of each cumulant over every transition stored so far (`agent.gvf_bootstrap_bound`).
+    A (1 - gamma)-scaled return is a weighted mean of cumulants (and 0 after a termination), so
+    the true value lies in [-M, M]; clamping the bootstrap there cannot move a correct estimate and
+    cuts the runaway of a GVF whose own predictions feed its targets (one diverged: docs/results.md)."""
+
+    def __init__(self, n_cumulants: int, device: torch.device | str = "cpu") -> None:
+        self.max_abs = torch.zeros(n_cumulants, device=device)
+
+    def update(self, next_state: Mapping[str, Tensor], names: Sequence[str]) -> None:
+        seen = cumulants(next_state, names).abs().amax(0)
+        self.max_abs = torch.maximum(self.max_abs, seen.to(self.max_abs.device))
 
 
 def gvf_loss(predictions: Tensor, target: Tensor, rho_bar: float | Tensor) -> Tensor:

@@ -44,6 +44,9 @@ class AgentConfig:
     gvf_terminal: str = "zero"
     """GVF target at a termination: zero (continuation 0, an ordinary TD target) or absorbing (the last cumulant
     continues, target c_T); zero drove better (docs/results.md, learner.gvf)."""
+    gvf_bootstrap_bound: bool = True
+    """Clamp the GVFs' bootstrapped v(s') to +-max |c| seen per cumulant (learner.gvf.ReturnBound),
+    where every true value lies; false: the paper's unclamped TD target."""
     discount: Optional[float] = None
     """DDPG discount of the reward (not stated in the paper); None: the scale's."""
     target_update: Optional[float] = None
