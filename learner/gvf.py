@@ -94,7 +94,7 @@ def td_target(
     v_next = next_predictions.detach()
     if bound is not None:
         limit = bound.repeat_interleave(n_gammas)
-        v_next = torch.maximum(torch.minimum(v_next, limit), -limit)
+        v_next = v_next.clamp(-limit, limit)
     bootstrap = torch.where(ended, after, v_next)
     return (1.0 - gammas) * c + gammas * bootstrap
 
