@@ -166,8 +166,7 @@ class LearningCore:
         transitions = transitions.to(self.device)
         if self.bound is not None:
             self.bound.update(transitions["next"], self.agent.cumulants)
-        ones = torch.ones(transitions.shape[0], 1, device=self.device)
-        rho = self.insert_rho(transitions) if self.predictive else ones
+        rho = self.insert_rho(transitions) if self.predictive else torch.ones(len(transitions), 1, device=self.device)
         if self.scale.n_step > 1:
             transitions = transitions.clone(False)
             transitions.update(nstep_columns(transitions, self.scale.n_step, self.discount))
