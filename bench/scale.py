@@ -75,6 +75,7 @@ from bench.support.scale_procs import (  # noqa: E402
     stop_all,
 )
 from bench.support.transport_procs import episode_payloads  # noqa: E402
+from bench.support.transport_summary import learner_parameters  # noqa: E402
 from bench.transport import compose  # noqa: E402
 from common import wire  # noqa: E402
 
@@ -243,12 +244,7 @@ def main(argv: list[str] | None = None) -> dict:
         "chunk_bytes": chunk_bytes,
         "weights_payload_bytes": weights_bytes,
         "frame_shape": list(FRAME_SHAPE),
-        "ingest_batch": cfg.learner.ingest_batch,
-        "inbox_chunks": cfg.learner.inbox_chunks,
-        "buffer_size": cfg.scale.buffer_size,
-        "scale": cfg.scale.name,
-        "agent": cfg.agent.name,
-        "torch_threads": cfg.learner.torch_threads,
+        **learner_parameters(cfg),
         "weights_dtype": cfg.learner.weights_dtype,
         "latency_p99_target_ms": LATENCY_P99_TARGET_MS,
         "cpus": os.cpu_count(),

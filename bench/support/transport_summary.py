@@ -10,6 +10,18 @@ TARGET_RATIO, GOAL_TRANSITIONS_PER_S = 0.5, 50_000.0
 ACTOR_RHO_GOAL, ACTOR_RHO_RATIO = 40_000.0, 0.8
 
 
+def learner_parameters(cfg) -> dict:
+    """The learner's settings every ingest benchmark reports beside its figures."""
+    return {
+        "ingest_batch": cfg.learner.ingest_batch,
+        "inbox_chunks": cfg.learner.inbox_chunks,
+        "buffer_size": cfg.scale.buffer_size,
+        "scale": cfg.scale.name,
+        "agent": cfg.agent.name,
+        "torch_threads": cfg.learner.torch_threads,
+    }
+
+
 def median(values: list[float]) -> float:
     return float(statistics.median(values)) if values else float("nan")
 
@@ -86,12 +98,7 @@ def summarize(
         "chunk_len": cfg.actor.chunk_len,
         "frame_shape": [64, 128],
         "chunk_bytes": chunk_bytes,
-        "ingest_batch": cfg.learner.ingest_batch,
-        "inbox_chunks": cfg.learner.inbox_chunks,
-        "buffer_size": cfg.scale.buffer_size,
-        "scale": cfg.scale.name,
-        "agent": cfg.agent.name,
-        "torch_threads": cfg.learner.torch_threads,
+        **learner_parameters(cfg),
         "cpus": os.cpu_count(),
         "overrides": args.overrides,
         "wall_s": round(wall_s, 1),
