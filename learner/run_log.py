@@ -4,6 +4,7 @@ diag/, actors/, time/) and progress.json (replaced atomically: the launcher neve
 from __future__ import annotations
 
 import json
+import logging
 import os
 from pathlib import Path
 
@@ -21,16 +22,51 @@ ACTOR_SCALARS = (
     "policy_lag",
     "rho_lag",
 )
+# rho_bar below this: almost no stored action is one tau would take. In GVF-0.95 seed 0
+# (docs/results.md) it fell from 2.2 to 1e-16 as steering went full-lock, and the GVFs stopped.
+RHO_STARVED = 0.01
+
+log = logging.getLogger(__name__)
+
+
+class SupportWatch:
+    """Says once, in the log, when the replay stops supporting tau (rho_bar < `floor`), and once
+    when it does again (rho_bar >= 10 `floor`): the GVFs' loss is scaled by rho_bar, so while
+    starved the predictions, and the policy's representation with them, barely move."""
+
+    def __init__(self, floor: float = RHO_STARVED) -> None:
+        self.floor = floor
+        self.starved = False
+
+    def check(self, rho_bar: float | None, updates: int) -> str | None:
+        if rho_bar is None:
+            return None
+        if not self.starved and rho_bar < self.floor:
+            self.starved = True
+            message = (
+                f"rho_bar {rho_bar:.2g} < {self.floor:g} at update {updates}: the behaviour has left tau's "
+                "support (it rarely takes an action near its last one), so the GVFs have all but stopped learning"
+            )
+            log.warning(message)
+            return message
+        if self.starved and rho_bar >= 10 * self.floor:
+            self.starved = False
+            message = f"rho_bar {rho_bar:.2g} at update {updates}: tau is supported again, the GVFs learn"
+            log.info(message)
+            return message
+        return None
 
 
 class RunLog:
     def __init__(self, run_dir: str | Path) -> None:
         self.run_dir = Path(run_dir)
         self.writer = SummaryWriter(str(self.run_dir / "tb"))
+        self.support = SupportWatch()
 
     def write(self, progress: dict, metrics: dict, rates: dict) -> None:
         """One log point at `progress["updates"]`: the latest metrics, the rates and the counters."""
         step = progress["updates"]
+        self.support.check(progress.get("rho_bar"), step)
         w = self.writer
         for key, value in metrics.items():
             w.add_scalar(key, value, step)
