@@ -133,6 +133,6 @@ def test_short_training_then_eval_and_comparison_of_its_checkpoint_write_tables_
     table = compare(tmp_path / "runs", tmp_path / "results").read_text()
     assert table.count("### ") == 5 and "### last checkpoint, test roads, damaged lane markings\n" in table
     assert table.count("| gvf_ddpg | 1 |") == 4 and table.count("| kinematic controller | - |") == 4
-    assert "| gvf_ddpg | 0 |" in table  # the staying-good row of the run
+    assert f"| gvf_ddpg | 0 | {record['progress']['updates']} |" in table  # the run's staying-good row, its updates
     for name in ("curve_reward_per_s", "curve_episode_length", "curve_offcenteredness", "lane_centeredness_final"):
         assert (tmp_path / "results" / f"{name}.png").stat().st_size > 1000

@@ -74,6 +74,8 @@ def staying_good(record: dict) -> dict:
     clean = last.get("clean", {})
     return {
         "seed": record["seed"],
+        # a wall-clock budget buys each variant a different number of updates
+        "updates": (record.get("progress") or {}).get("updates"),
         "minutes_to_all_laps": evals[first]["minute"] if first is not None else None,
         "updates_to_all_laps": evals[first]["updates"] if first is not None else None,
         "last_laps": round(clean["mean"]["lap_completed"] * len(clean["drives"])) if clean else None,
@@ -90,15 +92,15 @@ def staying_good(record: dict) -> dict:
 
 def staying_good_table(per: dict[str, list[dict]]) -> list[str]:
     lines = [
-        "| method | seed | min to all 12 laps | last checkpoint laps | its near-out-of-lane | its mean abs(alpha) | evals after | share >= 11 | validation-selected laps |",
-        "|" + " --- |" * 9,
+        "| method | seed | updates | min to all 12 laps | last checkpoint laps | its near-out-of-lane | its mean abs(alpha) | evals after | share >= 11 | validation-selected laps |",
+        "|" + " --- |" * 10,
     ]
     fmt = lambda x, f="{:.2f}": "-" if x is None else f.format(x)  # noqa: E731
     for variant, records in per.items():
         for r in records:
             s = staying_good(r)
             lines.append(
-                f"| {variant} | {s['seed']} | {fmt(s['minutes_to_all_laps'], '{:.1f}')} | {fmt(s['last_laps'], '{}')} | "
+                f"| {variant} | {s['seed']} | {fmt(s['updates'], '{}')} | {fmt(s['minutes_to_all_laps'], '{:.1f}')} | {fmt(s['last_laps'], '{}')} | "
                 f"{fmt(s['last_near_out_of_lane'], '{:.3f}')} | {fmt(s['last_offcenteredness'], '{:.3f}')} | {s['evaluations_after']} | "
                 f"{fmt(s['fraction_after_with_11'])} | {fmt(s['selected_laps'], '{}')} |"
             )
