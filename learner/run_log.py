@@ -38,23 +38,21 @@ class SupportWatch:
         self.floor = floor
         self.starved = False
 
-    def check(self, rho_bar: float | None, updates: int) -> str | None:
+    def check(self, rho_bar: float | None, updates: int) -> None:
         if rho_bar is None:
-            return None
+            return
         if not self.starved and rho_bar < self.floor:
             self.starved = True
-            message = (
-                f"rho_bar {rho_bar:.2g} < {self.floor:g} at update {updates}: the behaviour has left tau's "
-                "support (it rarely takes an action near its last one), so the GVFs have all but stopped learning"
+            log.warning(
+                "rho_bar %.2g < %g at update %d: the behaviour has left tau's support (it rarely takes an "
+                "action near its last one), so the GVFs have all but stopped learning",
+                rho_bar,
+                self.floor,
+                updates,
             )
-            log.warning(message)
-            return message
-        if self.starved and rho_bar >= 10 * self.floor:
+        elif self.starved and rho_bar >= 10 * self.floor:
             self.starved = False
-            message = f"rho_bar {rho_bar:.2g} at update {updates}: tau is supported again, the GVFs learn"
-            log.info(message)
-            return message
-        return None
+            log.info("rho_bar %.2g at update %d: tau is supported again, the GVFs learn", rho_bar, updates)
 
 
 class RunLog:

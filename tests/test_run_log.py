@@ -29,7 +29,7 @@ def test_a_starved_rho_bar_is_said_once_and_its_recovery_once(tmp_path, caplog):
         assert len(said) == 1 and "update 300" in said[0] and "tau" in said[0]
         run_log.write(progress(500, 0.05), {}, RATES)  # not yet 10x the floor: still starved, nothing new
         run_log.write(progress(600, 0.2), {}, RATES)
-        infos = [r.getMessage() for r in caplog.records if r.levelno == logging.INFO]
+        infos = [r.getMessage() for r in caplog.records if r.name == "learner.run_log" and r.levelno == logging.INFO]
         assert len(infos) == 1 and "update 600" in infos[0]
         run_log.write(progress(700, 0.001), {}, RATES)  # starved again: said again
         assert len(warnings(caplog)) == 2
