@@ -99,9 +99,22 @@ def _init_last_layer(branch: nn.Sequential) -> None:
 
 
 class BranchedActor(nn.Module):
-    """pi(x): one MLP branch per action dimension, linear output squashed to [-1, 1]."""
+    """pi(x): one MLP branch per action dimension, linear output squashed to [-1, 1].
 
-    def __init__(self, in_dim: int, hidden: Sequence[int], n_actions: int = ACTION_DIM, squash: str = "clip"):
+    `mirror_sign` (in_dim,), if given, makes pi mirror-equivariant by construction: with M = diag
+    (mirror_sign), the steering output is (f(x) - f(Mx)) / 2 and the target speed (g(x) + g(Mx)) / 2,
+    so pi(Mx) is pi(x) with the steering negated and x = Mx (a centred car on a straight road) steers
+    exactly 0. It is a buffer, so an actor built without it refuses these weights.
+    """
+
+    def __init__(
+        self,
+        in_dim: int,
+        hidden: Sequence[int],
+        n_actions: int = ACTION_DIM,
+        squash: str = "clip",
+        mirror_sign: Tensor | None = None,
+    ):
         super().__init__()
         if squash not in SQUASHES:
             raise ValueError(f"squash must be one of {SQUASHES}, got {squash!r}")
@@ -109,9 +122,22 @@ class BranchedActor(nn.Module):
         for branch in self.branches:
             _init_last_layer(branch)
         self.squash = squash
+        self.mirror_sign: Tensor | None
+        if mirror_sign is None:
+            self.mirror_sign = None
+        else:
+            if mirror_sign.shape != (in_dim,):
+                raise ValueError(f"mirror_sign must have shape ({in_dim},), got {tuple(mirror_sign.shape)}")
+            self.register_buffer("mirror_sign", mirror_sign.float().clone())
+
+    def _raw(self, x: Tensor) -> Tensor:
+        return torch.cat([branch(x) for branch in self.branches], -1)
 
     def forward(self, x: Tensor) -> Tensor:
-        out = torch.cat([branch(x) for branch in self.branches], -1)
+        out = self._raw(x)
+        if self.mirror_sign is not None:
+            mirrored = self._raw(x * self.mirror_sign)
+            out = torch.cat([out[..., :1] - mirrored[..., :1], out[..., 1:] + mirrored[..., 1:]], -1) * 0.5
         return out.clamp(-1.0, 1.0) if self.squash == "clip" else torch.tanh(out)
 
 
@@ -174,6 +200,12 @@ def phi(predictions: Tensor, speed: Tensor, last_action: Tensor) -> Tensor:
     return torch.cat([predictions, speed, last_action], -1)
 
 
+def phi_mirror_sign(n_predictions: int) -> Tensor:
+    """Sign of each entry of phi under a left-right mirror: every prediction is of alpha or beta
+    (both negate), speed stays, of the last action the steering negates and the target speed stays."""
+    return torch.tensor([-1.0] * n_predictions + [1.0, -1.0, 1.0])
+
+
 class Policy(nn.Module):
     """The acting network: obs mapping (image, speed, last_action[, alpha, beta]) -> action.
 
@@ -232,7 +264,10 @@ def make_policy(agent: AgentConfig, scale: ScaleConfig) -> Policy:
     _check(agent)
     if agent.representation == "predictive":
         gvf = GVFNetwork(scale.conv_channels, scale.gvf_hidden, n_predictions(agent))
-        actor = BranchedActor(gvf.n_predictions + LOW_DIM, scale.policy_hidden, squash=actor_squash(agent, scale))
+        sign = phi_mirror_sign(gvf.n_predictions) if scale.mirror_actor else None
+        actor = BranchedActor(
+            gvf.n_predictions + LOW_DIM, scale.policy_hidden, squash=actor_squash(agent, scale), mirror_sign=sign
+        )
         return Policy("predictive", actor, gvf)
     lowdim = scale.lowdim_width if agent.representation == "lowdim" else 0
     actor = ImageActor(

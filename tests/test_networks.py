@@ -1,6 +1,7 @@
 """Networks (common/networks.py) and the agent/scale configs (common/config/agent.py,
 conf/agent, conf/scale): the paper's shapes, initialisation and output ranges."""
 
+import dataclasses
 import subprocess
 import sys
 from pathlib import Path
@@ -11,7 +12,15 @@ from hydra import compose, initialize_config_dir
 from omegaconf import OmegaConf
 
 from common.config.agent import AgentConfig, ScaleConfig, register
-from common.networks import BranchedActor, BranchedCritic, GVFNetwork, PilotNetTrunk, make_networks, make_policy
+from common.networks import (
+    BranchedActor,
+    BranchedCritic,
+    GVFNetwork,
+    PilotNetTrunk,
+    make_networks,
+    make_policy,
+    phi_mirror_sign,
+)
 
 CONF = Path(__file__).resolve().parents[1] / "conf"
 VARIANTS = ["gvf_ddpg", "gvf_ddpg_g0", "gvf_ddpg_g095", "ddpg_image", "ddpg_lowdim"]
@@ -93,6 +102,37 @@ def test_actor_last_layers_are_near_zero_and_outputs_clipped():
         torch.nn.init.constant_(branch[-1].bias, 5.0)
     assert torch.all(actor(x) == 1.0)
     assert torch.all(BranchedActor(13, [8], squash="tanh")(x).abs() < 1.0)
+
+
+@pytest.mark.parametrize("squash", ["clip", "tanh"])
+def test_mirror_actor_steers_oddly_and_sets_speed_evenly_under_the_mirror(squash):
+    torch.manual_seed(0)
+    sign = phi_mirror_sign(10)
+    actor = BranchedActor(13, [16, 8], squash=squash, mirror_sign=sign)
+    for branch in actor.branches:  # outputs well away from 0 at init, inside the clip
+        torch.nn.init.normal_(branch[-1].weight, std=0.3)
+        torch.nn.init.constant_(branch[-1].bias, 0.2)
+    x = torch.randn(32, 13) * 0.5
+    out, mirrored = actor(x), actor(x * sign)
+    assert out[:, 0].abs().min() > 0  # a real steering signal, not 0 everywhere
+    assert torch.allclose(mirrored[:, 0], -out[:, 0], atol=1e-6)
+    assert torch.allclose(mirrored[:, 1], out[:, 1], atol=1e-6)
+    centred = x * (sign > 0)  # every prediction and the last steering 0: its own mirror image
+    assert torch.all(actor(centred)[:, 0] == 0)
+    plain = BranchedActor(13, [16, 8], squash=squash)
+    plain.load_state_dict(actor.state_dict(), strict=False)
+    assert not torch.allclose(plain(x)[:, 0], out[:, 0])  # the symmetry comes from the construction
+
+
+def test_mirror_actor_is_built_from_the_scale_and_refused_by_an_actor_without_it():
+    agent, scale = load("gvf_ddpg", "small")
+    on = dataclasses.replace(scale, mirror_actor=True)
+    policy = make_policy(agent, on)
+    assert torch.equal(policy.actor.mirror_sign, torch.tensor([-1.0] * 10 + [1.0, -1.0, 1.0]))
+    with pytest.raises(RuntimeError, match="mirror_sign"):
+        make_policy(agent, dataclasses.replace(scale, mirror_actor=False)).load_state_dict(policy.state_dict())
+    image_agent, _ = load("ddpg_image", "small")
+    assert "mirror_sign" not in str(list(make_policy(image_agent, on).state_dict()))  # baselines unaffected
 
 
 def test_critic_is_the_sum_of_its_branches():

@@ -2,6 +2,7 @@
 rho enters the replay as tau / mu_hat, the refresh switch works, checkpoints resume exactly."""
 
 import copy
+import dataclasses
 
 import pytest
 import torch
@@ -71,6 +72,21 @@ def test_every_variant_updates_on_recorded_lanedrive_transitions(variant):
     while not metrics:
         metrics = core.update()
     assert all(torch.isfinite(torch.tensor(v)) for v in metrics.values()), metrics
+
+
+def test_mirror_actor_trains_and_its_broadcast_drives_the_same(data):
+    core = LearningCore(AgentConfig(name="gvf_ddpg", **VARIANTS["gvf_ddpg"]), dataclasses.replace(TINY, mirror_actor=True))
+    core.add(data)
+    before = copy.deepcopy(core.nets.actor.state_dict())
+    for _ in range(3):
+        assert all(torch.isfinite(torch.tensor(v)) for v in core.update().values())
+    moved = [k for k, v in core.nets.actor.state_dict().items() if not torch.equal(v, before[k])]
+    # every weight but the sign and the steering output's bias, which cancels in f(x) - f(Mx)
+    assert sorted(set(before) - set(moved)) == ["branches.0.4.bias", "mirror_sign"]
+    acting = make_policy(core.agent, dataclasses.replace(TINY, mirror_actor=True))
+    acting.load_state_dict(core.policy_state_dict())
+    with torch.no_grad():
+        assert torch.equal(acting(data[:5]), core.nets.policy(data[:5]))
 
 
 def test_rho_at_insert_is_tau_over_mu_hat_and_clips_are_counted(data):

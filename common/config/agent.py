@@ -105,6 +105,10 @@ class ScaleConfig:
     mirror: float = 0.0
     """Fraction of every sampled minibatch mirrored left-right (frames flipped; steering, alpha and
     beta negated; learner.mirror), as the paper augmented its Jackal data; 0 in its TORCS setup."""
+    mirror_actor: bool = False
+    """GVF-DDPG's actor mirror-equivariant by construction (common.networks.BranchedActor's
+    mirror_sign): steering odd, target speed even under negating every prediction and the last
+    steering; the image baselines are unaffected (their input would need flipped frames)."""
     reward_scale: float = 1.0
     """DDPG's reward is multiplied by this (the paper scaled its reward so that action values lie in [-1, 1])."""
     crash_penalty: float = 0.0
