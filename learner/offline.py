@@ -34,6 +34,7 @@ from common.config.agent import AgentConfig, ScaleConfig
 from common.dataset import Dataset
 from common.networks import phi
 from learner.core import LearningCore
+from learner.mirror import mirror as mirror_batch
 from learner.replay import ImportanceResamplingReplay, compact, expand
 
 LOAD_SLICE = 256  # transitions per insert: rho of a slice in one discriminator pass
@@ -103,14 +104,19 @@ class RepresentationTrainer:
 
 
 @torch.no_grad()
-def phi_table(gvf: torch.nn.Module, dataset: Dataset, reward_scale: float, slice_size: int = 512) -> TensorDict:
+def phi_table(
+    gvf: torch.nn.Module, dataset: Dataset, reward_scale: float, slice_size: int = 512, mirrored: bool = False
+) -> TensorDict:
     """Every transition as BCQ's flat batch: observation phi(s), action, next (observation phi(s'),
-    reward * reward_scale, done, terminated), with the GVFs as they are (no gradient)."""
+    reward * reward_scale, done, terminated), with the GVFs as they are (no gradient). `mirrored`:
+    of every transition's left-right mirror image (learner.mirror), the GVFs run on the flipped frames."""
     device = next(gvf.parameters()).device
     parts = []
     for shard, _ in dataset:
         for start in range(0, len(shard), slice_size):
             td = expand(shard[start : start + slice_size].to_tensordict()).to(device)
+            if mirrored:
+                td = mirror_batch(td, torch.ones(len(td), dtype=torch.bool, device=device))
             parts.append(_bcq_item(td, gvf, reward_scale))
     return torch.cat(parts).cpu()
 
@@ -140,19 +146,38 @@ class BCQBatches:
         self.sample = sample
 
     @classmethod
-    def table(cls, table: TensorDict, batch_size: int, seed: int = 0) -> BCQBatches:
+    def table(
+        cls, table: TensorDict, batch_size: int, seed: int = 0, mirrored: TensorDict | None = None, mirror: float = 0.0
+    ) -> BCQBatches:
+        """Rows of `table`; with `mirrored` (phi_table(..., mirrored=True)), each row independently
+        its mirror image with probability `mirror` (the paper's flipped-image augmentation)."""
         g = torch.Generator().manual_seed(seed)
-        return cls(lambda: table[torch.randint(len(table), (batch_size,), generator=g)])
+
+        def sample() -> TensorDict:
+            index = torch.randint(len(table), (batch_size,), generator=g)
+            batch = table[index]
+            if mirrored is not None and mirror > 0:
+                flip = torch.rand(batch_size, generator=g) < mirror
+                batch[flip] = mirrored[index[flip]]
+            return batch
+
+        return cls(sample)
 
     @classmethod
-    def images(cls, dataset: Dataset, batch_size: int, reward_scale: float, seed: int = 0) -> BCQBatches:
-        """The whole dataset in memory in the replay's compact layout (24 KiB a transition)."""
+    def images(
+        cls, dataset: Dataset, batch_size: int, reward_scale: float, seed: int = 0, mirror: float = 0.0
+    ) -> BCQBatches:
+        """The whole dataset in memory in the replay's compact layout (24 KiB a transition); each
+        sampled item mirrored left-right (learner.mirror) with probability `mirror`."""
         replay = ImportanceResamplingReplay(len(dataset), seed=seed)
         for td in recorded_order(dataset, seed):
             replay.extend(compact(td, torch.ones(len(td), 1)))
+        g = torch.Generator().manual_seed(seed + 1)
 
         def sample() -> TensorDict:
             td = expand(replay.sample_uniform(batch_size))
+            if mirror > 0:
+                td = mirror_batch(td, torch.rand(batch_size, generator=g) < mirror)
             nxt = td["next"]
             return TensorDict(
                 {

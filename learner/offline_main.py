@@ -109,11 +109,13 @@ def train_offline(run: RunConfig, out_dir: str | Path, show_progress: bool = Tru
             policy = make_offline_policy(o.method, agent, scale, build_args(o.method, agent, scale))
             policy.gvf.load_state_dict(rep["gvf"])
             policy.gvf.to(device).eval()
-            batches = BCQBatches.table(phi_table(policy.gvf, dataset, scale.reward_scale), scale.batch_size, run.seed)
+            table = phi_table(policy.gvf, dataset, scale.reward_scale)
+            mirrored = phi_table(policy.gvf, dataset, scale.reward_scale, mirrored=True) if o.mirror > 0 else None
+            batches = BCQBatches.table(table, scale.batch_size, run.seed, mirrored, o.mirror)
             bcq = make_bcq(policy.gvf.n_predictions + 3, **bcq_args)
             updates, offset = o.bcq_updates, o.gvf_updates
         else:
-            batches = BCQBatches.images(dataset, scale.batch_size, scale.reward_scale, run.seed)
+            batches = BCQBatches.images(dataset, scale.batch_size, scale.reward_scale, run.seed, o.mirror)
             bcq = make_bcq(0, image_channels=scale.conv_channels, **bcq_args)
             updates, offset = o.gvf_updates + o.bcq_updates, 0
         bcq.loss.to(device)

@@ -81,6 +81,8 @@ def test_a_bad_collect_value_is_refused_naming_the_field():
         compose_run(["collect.split=holdout"])
     with pytest.raises((ValueError, DatasetError), match="offline.method"):
         compose_run(["offline.method=cql"])
+    with pytest.raises(ValueError, match="offline.mirror"):
+        compose_run(["offline.mirror=1.5"])
 
 
 def test_action_noise_is_a_truncated_normal_whose_density_is_stored(tmp_path):

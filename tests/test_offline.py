@@ -11,7 +11,8 @@ from tensordict import TensorDict
 
 from common.config.agent import AgentConfig
 from common.dataset import FIELDS, Dataset, DatasetWriter
-from learner.offline import RepresentationTrainer, recorded_order
+from common.networks import GVFNetwork
+from learner.offline import BCQBatches, RepresentationTrainer, phi_table, recorded_order
 from tests.core_fixtures import TINY
 from tests.test_gvf import GAMMAS, N_POS, WIDTH, behaviour_data, train, true_values
 
@@ -126,3 +127,24 @@ def test_recorded_order_is_every_shard_whole_in_a_seeded_shuffled_order(chain):
     again = torch.cat([td["action"] for td in recorded_order(dataset, seed=3)])
     other = torch.cat([td["action"] for td in recorded_order(dataset, seed=4)])
     assert torch.equal(out, again) and not torch.equal(out, other)
+
+
+def test_bcq_minibatches_mirror_the_asked_fraction_phi_from_the_flipped_frames(chain):
+    _, dataset = chain
+    torch.manual_seed(0)
+    gvf = GVFNetwork(CHAIN_SCALE.conv_channels, [8], 4)
+    table, mirrored = phi_table(gvf, dataset, 1.0), phi_table(gvf, dataset, 1.0, mirrored=True)
+    assert torch.equal(mirrored["action"][:, 0], -table["action"][:, 0])
+    assert torch.equal(mirrored["action"][:, 1], table["action"][:, 1])
+    assert torch.equal(mirrored["next", "reward"], table["next", "reward"])
+    assert torch.equal(mirrored["observation"][:, -2], -table["observation"][:, -2])  # last steering
+    assert torch.equal(mirrored["observation"][:, -3], table["observation"][:, -3])  # speed
+    plain = BCQBatches.table(table, 1000, seed=1, mirrored=mirrored, mirror=0.0).sample()
+    half = BCQBatches.table(table, 1000, seed=1, mirrored=mirrored, mirror=0.5).sample()
+    flipped = (half["action"][:, 0] != plain["action"][:, 0]).float().mean()
+    assert 0.3 < flipped < 0.7  # rows with a non-zero steering that came from the mirrored table
+    assert torch.equal(half["action"][:, 1], plain["action"][:, 1])  # the same rows, drawn alike
+    images = BCQBatches.images(dataset, 256, 1.0, seed=2).sample()
+    images_all = BCQBatches.images(dataset, 256, 1.0, seed=2, mirror=1.0).sample()
+    assert torch.equal(images_all["action"][:, 0], -images["action"][:, 0])
+    assert torch.equal(images_all["next", "reward"], images["next", "reward"])

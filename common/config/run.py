@@ -173,6 +173,9 @@ class OfflineConfig:
     """'recorded': the last transition enters the replay at this fraction of gvf_updates."""
     lr: float = 1e-4
     """BCQ's learning rate (the paper: 1e-4; the GVFs' and g's are the scale's)."""
+    mirror: float = 0.0
+    """Fraction of every BCQ minibatch mirrored left-right, GVF-BCQ and E2E-BCQ alike (the paper
+    augmented its Jackal data with flipped images; the GVFs follow `scale.mirror`); 0: none."""
     checkpoint_dir: str = "checkpoints/offline"
     """Where gvf-offline writes its checkpoints, under the run folder if relative (gvf-eval reads them)."""
 
@@ -279,5 +282,7 @@ def check_offline(run: RunConfig) -> None:
             raise ValueError(f"offline.{name} must be >= 0, got {getattr(o, name)}")
     if not o.lr > 0.0:
         raise ValueError(f"offline.lr must be > 0, got {o.lr}")
+    if not 0.0 <= o.mirror <= 1.0:
+        raise ValueError(f"offline.mirror must be in [0, 1], got {o.mirror}")
     if not 0.0 < o.load_fraction <= 1.0:
         raise ValueError(f"offline.load_fraction must be in (0, 1], got {o.load_fraction}")
