@@ -75,7 +75,9 @@ def test_every_variant_updates_on_recorded_lanedrive_transitions(variant):
 
 
 def test_mirror_actor_trains_and_its_broadcast_drives_the_same(data):
-    core = LearningCore(AgentConfig(name="gvf_ddpg", **VARIANTS["gvf_ddpg"]), dataclasses.replace(TINY, mirror_actor=True))
+    core = LearningCore(
+        AgentConfig(name="gvf_ddpg", **VARIANTS["gvf_ddpg"]), dataclasses.replace(TINY, mirror_actor=True)
+    )
     core.add(data)
     before = copy.deepcopy(core.nets.actor.state_dict())
     for _ in range(3):
