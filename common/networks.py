@@ -122,13 +122,9 @@ class BranchedActor(nn.Module):
         for branch in self.branches:
             _init_last_layer(branch)
         self.squash = squash
-        self.mirror_sign: Tensor | None
-        if mirror_sign is None:
-            self.mirror_sign = None
-        else:
-            if mirror_sign.shape != (in_dim,):
-                raise ValueError(f"mirror_sign must have shape ({in_dim},), got {tuple(mirror_sign.shape)}")
-            self.register_buffer("mirror_sign", mirror_sign.float().clone())
+        if mirror_sign is not None and mirror_sign.shape != (in_dim,):
+            raise ValueError(f"mirror_sign must have shape ({in_dim},), got {tuple(mirror_sign.shape)}")
+        self.register_buffer("mirror_sign", None if mirror_sign is None else mirror_sign.float().clone())
 
     def _raw(self, x: Tensor) -> Tensor:
         return torch.cat([branch(x) for branch in self.branches], -1)
