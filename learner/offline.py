@@ -106,19 +106,21 @@ class RepresentationTrainer:
 @torch.no_grad()
 def phi_table(
     gvf: torch.nn.Module, dataset: Dataset, reward_scale: float, slice_size: int = 512, mirrored: bool = False
-) -> TensorDict:
+) -> tuple[TensorDict, TensorDict | None]:
     """Every transition as BCQ's flat batch: observation phi(s), action, next (observation phi(s'),
     reward * reward_scale, done, terminated), with the GVFs as they are (no gradient). `mirrored`:
-    of every transition's left-right mirror image (learner.mirror), the GVFs run on the flipped frames."""
+    also, from the same pass over the dataset, every transition's left-right mirror image
+    (learner.mirror), the GVFs run on the flipped frames; else None in its place."""
     device = next(gvf.parameters()).device
-    parts = []
+    parts, mirror_parts = [], []
     for shard, _ in dataset:
         for start in range(0, len(shard), slice_size):
             td = expand(shard[start : start + slice_size].to_tensordict()).to(device)
-            if mirrored:
-                td = mirror_batch(td, torch.ones(len(td), dtype=torch.bool, device=device))
             parts.append(_bcq_item(td, gvf, reward_scale))
-    return torch.cat(parts).cpu()
+            if mirrored:
+                flip = torch.ones(len(td), dtype=torch.bool, device=device)
+                mirror_parts.append(_bcq_item(mirror_batch(td, flip), gvf, reward_scale))
+    return torch.cat(parts).cpu(), torch.cat(mirror_parts).cpu() if mirrored else None
 
 
 def _bcq_item(td: TensorDictBase, gvf: torch.nn.Module, reward_scale: float) -> TensorDict:
@@ -149,7 +151,7 @@ class BCQBatches:
     def table(
         cls, table: TensorDict, batch_size: int, seed: int = 0, mirrored: TensorDict | None = None, mirror: float = 0.0
     ) -> BCQBatches:
-        """Rows of `table`; with `mirrored` (phi_table(..., mirrored=True)), each row independently
+        """Rows of `table`; with `mirrored` (phi_table's second table), each row independently
         its mirror image with probability `mirror` (the paper's flipped-image augmentation)."""
         g = torch.Generator().manual_seed(seed)
 

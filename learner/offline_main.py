@@ -109,8 +109,7 @@ def train_offline(run: RunConfig, out_dir: str | Path, show_progress: bool = Tru
             policy = make_offline_policy(o.method, agent, scale, build_args(o.method, agent, scale))
             policy.gvf.load_state_dict(rep["gvf"])
             policy.gvf.to(device).eval()
-            table = phi_table(policy.gvf, dataset, scale.reward_scale)
-            mirrored = phi_table(policy.gvf, dataset, scale.reward_scale, mirrored=True) if o.mirror > 0 else None
+            table, mirrored = phi_table(policy.gvf, dataset, scale.reward_scale, mirrored=o.mirror > 0)
             batches = BCQBatches.table(table, scale.batch_size, run.seed, mirrored, o.mirror)
             bcq = make_bcq(policy.gvf.n_predictions + 3, **bcq_args)
             updates, offset = o.bcq_updates, o.gvf_updates

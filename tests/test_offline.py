@@ -133,7 +133,9 @@ def test_bcq_minibatches_mirror_the_asked_fraction_phi_from_the_flipped_frames(c
     _, dataset = chain
     torch.manual_seed(0)
     gvf = GVFNetwork(CHAIN_SCALE.conv_channels, [8], 4)
-    table, mirrored = phi_table(gvf, dataset, 1.0), phi_table(gvf, dataset, 1.0, mirrored=True)
+    table, mirrored = phi_table(gvf, dataset, 1.0, mirrored=True)
+    assert torch.equal(phi_table(gvf, dataset, 1.0)[0]["observation"], table["observation"])
+    assert phi_table(gvf, dataset, 1.0)[1] is None
     assert torch.equal(mirrored["action"][:, 0], -table["action"][:, 0])
     assert torch.equal(mirrored["action"][:, 1], table["action"][:, 1])
     assert torch.equal(mirrored["next", "reward"], table["next", "reward"])
