@@ -38,12 +38,15 @@ class Route:
     subscribers: tuple[str, ...]
     message: str
     congestion: str
+    priority: str
+    """Zenoh priority: the router and every session serve a higher one first, so a weights broadcast
+    or a pause does not queue behind a backlog of transitions (measured: README, capacity)."""
     note: str = ""
 
 
 WIRING: tuple[Route, ...] = (
-    Route("transitions", "transitions/<actor>", ("actor",), ("learner",), "TransitionChunk", "BLOCK"),
-    Route("episodes", "episodes/<actor>", ("actor",), ("learner",), "EpisodeSummary", "BLOCK"),
+    Route("transitions", "transitions/<actor>", ("actor",), ("learner",), "TransitionChunk", "BLOCK", "data"),
+    Route("episodes", "episodes/<actor>", ("actor",), ("learner",), "EpisodeSummary", "BLOCK", "data"),
     Route(
         "weights",
         "weights",
@@ -51,9 +54,10 @@ WIRING: tuple[Route, ...] = (
         ("actor", "evaluator"),
         "Weights",
         "BLOCK",
+        "data_high",
         "also a queryable answered by the learner: actors fetch the latest at start-up",
     ),
-    Route("tracks", "tracks", ("learner",), ("actor",), "TrackTable", "BLOCK"),
+    Route("tracks", "tracks", ("learner",), ("actor",), "TrackTable", "BLOCK", "data_high"),
     Route(
         "control",
         "control",
@@ -61,9 +65,19 @@ WIRING: tuple[Route, ...] = (
         ("learner", "actor"),
         "Control",
         "BLOCK",
+        "interactive_high",
         "stop / pause / resume from the operator",
     ),
-    Route("flow", "flow", ("learner",), ("actor",), "Control", "BLOCK", "pause / resume: the learner's rate limit"),
+    Route(
+        "flow",
+        "flow",
+        ("learner",),
+        ("actor",),
+        "Control",
+        "BLOCK",
+        "interactive_high",
+        "pause / resume: the learner's rate limit",
+    ),
     Route(
         "alive",
         "alive/<role>/<name>",
@@ -71,10 +85,20 @@ WIRING: tuple[Route, ...] = (
         ("learner", "gvfctl"),
         "-",
         "-",
+        "-",
         "liveliness tokens; the learner watches alive/actor/*, gvfctl alive/**",
     ),
 )
 ROUTES = {r.name: r for r in WIRING}
+
+
+def route_of_key(key: str) -> Route | None:
+    """The route a concrete key `gvf/<run>/...` belongs to, or None for a key outside the table."""
+    parts = key.split("/")
+    if len(parts) < 3 or parts[0] != PREFIX:
+        return None
+    rest = "/".join(parts[2:])
+    return next((r for r in WIRING if key_matches(re.sub(r"<[a-z]+>", "*", r.key), rest)), None)
 
 
 def route(name: str) -> Route:
@@ -200,7 +224,7 @@ def main(argv: list[str] | None = None) -> None:
     for r in WIRING:
         print(
             f"{root + '/' + r.key:<38} {', '.join(r.publishers):<16} -> {', '.join(r.subscribers):<18} "
-            f"{r.message:<16} {r.congestion:<6} {r.note}"
+            f"{r.message:<16} {r.congestion:<6} {r.priority:<16} {r.note}"
         )
 
 

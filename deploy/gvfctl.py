@@ -34,7 +34,7 @@ import zenoh
 
 from common.config.transport import TransportConfig
 from common.keys import Keys
-from common.transport.zenoh_backend import run_router, zenoh_config
+from common.transport.zenoh_backend import run_router, zenoh_config, zenoh_priority
 from common.wire import Control, encode
 
 PING_PREFIX = "gvf-ping"
@@ -120,7 +120,9 @@ def cmd_control(args: argparse.Namespace) -> int:
     keys = Keys(args.run)
     payload = encode(Control(args.command, reason=args.reason))
     with open_session(args) as session:
-        pub = session.declare_publisher(keys.control, congestion_control=zenoh.CongestionControl.BLOCK)
+        pub = session.declare_publisher(
+            keys.control, congestion_control=zenoh.CongestionControl.BLOCK, priority=zenoh_priority(keys.control)
+        )
         deadline = time.monotonic() + args.timeout
         while not pub.matching_status.matching and time.monotonic() < deadline:
             time.sleep(0.01)

@@ -97,12 +97,12 @@ def test_roles_declare_keys_through_the_wiring_table():
 
 def test_wire_doc_table_matches_the_wiring_table():
     text = (ROOT / "docs" / "wire.md").read_text()
-    rows = re.findall(r"^\| `gvf/<run>/([^`]+)` \| ([^|]+) \| ([^|]+) \| [^|]+ \| ([^|]+) \|$", text, re.M)
+    rows = re.findall(r"^\| `gvf/<run>/([^`]+)` \| ([^|]+) \| ([^|]+) \| [^|]+ \| ([^|]+) \| ([^|]+) \|$", text, re.M)
     doc = [
-        (key, *(tuple(x.strip() for x in col.split(",")) for col in (pub, sub)), cc.strip())
-        for key, pub, sub, cc in rows
+        (key, *(tuple(x.strip() for x in col.split(",")) for col in (pub, sub)), cc.strip(), prio.strip())
+        for key, pub, sub, cc, prio in rows
     ]
-    assert doc == [(r.key, r.publishers, r.subscribers, r.congestion) for r in WIRING]
+    assert doc == [(r.key, r.publishers, r.subscribers, r.congestion, r.priority) for r in WIRING]
 
 
 def test_thread_role_reports_crash_and_clean_exit(monkeypatch, tmp_path):

@@ -82,6 +82,18 @@ def test_keys_and_matching():
     assert keys.subscribe("transitions", "learner") == keys.all_transitions
 
 
+def test_route_of_key_finds_each_route_and_nothing_else():
+    from common.keys import route_of_key
+
+    keys = Keys("r1")
+    found = {
+        k: route_of_key(k).name for k in (keys.transitions("a7"), keys.weights, keys.flow, keys.alive("actor", "a1"))
+    }
+    assert list(found.values()) == ["transitions", "weights", "flow", "alive"]
+    for outside in ("gvf/r1/weights/extra", "gvf/r1/nothing", "other/r1/weights", "gvf", "gvf/r1"):
+        assert route_of_key(outside) is None, outside
+
+
 # --- in-process transport ------------------------------------------------------------------
 
 
@@ -382,3 +394,25 @@ def test_unclosed_session_does_not_hang_the_interpreter():
     done = subprocess.run([sys.executable, "-c", script], cwd=REPO, capture_output=True, text=True, timeout=60)
     assert done.returncode == 0, done.stderr
     assert "leaving without close" in done.stdout
+
+
+@pytest.mark.parametrize("priorities", [True, False])
+def test_zenoh_routes_arrive_at_their_wiring_priority(router_port, priorities):
+    import zenoh
+
+    from common.keys import route_of_key
+    from common.transport.zenoh_backend import ZenohTransport
+
+    keys = Keys(f"prio-{priorities}")
+    cfg = client_cfg(router_port)
+    seen: dict[str, zenoh.Priority] = {}
+    with ZenohTransport(cfg) as listener, ZenohTransport(client_cfg(router_port, priorities=priorities)) as sender:
+        cb = zenoh.handlers.Callback(lambda s: seen.setdefault(str(s.key_expr), s.priority), indirect=False)
+        listener.session.declare_subscriber(f"{keys.root}/**", cb)
+        sent = [keys.transitions("a0"), keys.weights, keys.tracks, keys.flow, keys.control]
+        pubs = [sender.publisher(k) for k in sent]
+        assert wait_for(lambda: ([p.put(b"x") for p in pubs], len(seen) == len(sent))[1])
+    want = {k: getattr(zenoh.Priority, route_of_key(k).priority.upper()) for k in sent}
+    assert seen == (want if priorities else dict.fromkeys(sent, zenoh.Priority.DATA))
+    # control overtakes weights, which overtake transitions (Zenoh serves a lower number first)
+    assert int(want[keys.control]) < int(want[keys.weights]) < int(want[keys.transitions("a0")])

@@ -57,6 +57,10 @@ class TransportConfig:
     query_timeout_s: float = 2.0
     """How long a `fetch` (e.g. of the latest weights) waits for an answer."""
 
+    priorities: bool = True
+    """Publish each route at its wiring-table priority (`common.keys`: control and flow, then weights
+    and tracks, ahead of transitions); false: everything at Zenoh's default priority (data)."""
+
     zenoh_config_file: Optional[str] = None
     """Zenoh JSON5 config file read first (TLS certificates, auth, access control); fields above override it."""
 

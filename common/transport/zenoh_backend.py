@@ -26,6 +26,7 @@ from typing import Any, Callable
 import zenoh
 
 from common.config.transport import TransportConfig
+from common.keys import route_of_key
 from common.transport.inbox import BoundedInbox
 from common.transport.interface import AliveWatcher, LatestValue, Received, Subscription, Token, check_congestion
 from common.wire import WireError
@@ -119,6 +120,14 @@ class ZenohLatestServer(LatestValue):
         self._thread.join(timeout=5.0)
 
 
+def zenoh_priority(key: str, enabled: bool = True) -> zenoh.Priority:
+    """The wiring table's priority for the route of `key` (Zenoh's default for keys outside it)."""
+    r = route_of_key(key) if enabled else None
+    if r is None or r.priority == "-":
+        return zenoh.Priority.DEFAULT
+    return getattr(zenoh.Priority, r.priority.upper())
+
+
 class ZenohTransport:
     """`Transport` over one Zenoh session built from a TransportConfig."""
 
@@ -152,7 +161,9 @@ class ZenohTransport:
     def publisher(self, key: str, *, congestion: str = "block") -> ZenohPublisher:
         self._check_open()
         cc = zenoh.CongestionControl.BLOCK if check_congestion(congestion) == "block" else zenoh.CongestionControl.DROP
-        pub = self.session.declare_publisher(key, congestion_control=cc)
+        pub = self.session.declare_publisher(
+            key, congestion_control=cc, priority=zenoh_priority(key, self.cfg.priorities)
+        )
         return self._own(ZenohPublisher(pub, key, self.cfg.max_message_size))
 
     def subscribe(
