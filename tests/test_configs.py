@@ -71,6 +71,20 @@ def test_a_study_job_whose_summary_exists_is_skipped(tmp_path, monkeypatch):
     assert ran == [] and not (tmp_path / "work").exists()
 
 
+def test_a_study_job_with_an_update_budget_ends_the_run_there_and_records_it(tmp_path, monkeypatch):
+    import json
+
+    from actors.evaluation import study
+
+    ran = []
+    monkeypatch.setattr(study.subprocess, "run", lambda cmd, **kw: ran.append((cmd, kw["timeout"])))
+    path = study.run_job("gvf_ddpg", 1, 70, 500, tmp_path / "runs", tmp_path / "work", ["x.y=1"], updates=17800)
+    (cmd, timeout), record = ran[0], json.loads(path.read_text())
+    assert "learner.max_updates=17800" in cmd and "max_seconds=4200" in cmd and timeout > 4200
+    assert cmd.index("learner.max_updates=17800") < cmd.index("x.y=1")  # an explicit override still wins
+    assert record["updates_budget"] == 17800 and record["minutes"] == 70 and record["evaluations"] == []
+
+
 def test_a_run_made_outside_the_study_is_adopted_with_minutes_from_its_start(tmp_path):
     import json
     import os

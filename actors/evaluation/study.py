@@ -121,9 +121,17 @@ def adopt(
 
 
 def run_job(
-    variant: str, seed: int, minutes: float, eval_every: int, out: Path, work: Path, overrides: list[str]
+    variant: str,
+    seed: int,
+    minutes: float,
+    eval_every: int,
+    out: Path,
+    work: Path,
+    overrides: list[str],
+    updates: int = 0,
 ) -> Path:
-    """One training run and its summary; skipped if the summary exists."""
+    """One training run and its summary; skipped if the summary exists. `updates` > 0 ends the run
+    at that many learner updates (`minutes` is then only a cap)."""
     path = summary_path(out, variant, seed)
     if path.exists():
         print(f"skip {variant} seed {seed}: {path} exists", flush=True)
@@ -141,6 +149,7 @@ def run_job(
         f"max_seconds={minutes * 60:.0f}",
         f"eval.every_updates={eval_every}",
         f"hydra.run.dir={run_dir}",
+        *([f"learner.max_updates={updates}"] if updates > 0 else []),
         *overrides,
     ]
     print(f"run {variant} seed {seed} for {minutes} min in {run_dir}", flush=True)
@@ -158,6 +167,7 @@ def run_job(
         "variant": variant,
         "seed": seed,
         "minutes": minutes,
+        "updates_budget": updates,
         "eval_every": eval_every,
         "overrides": overrides,
         "wall_minutes": round((time.time() - start) / 60, 2),
@@ -170,6 +180,13 @@ def main() -> None:
     parser.add_argument("--variants", nargs="+", default=list(VARIANTS), choices=VARIANTS)
     parser.add_argument("--seeds", nargs="+", type=int, default=[0, 1, 2, 3, 4])
     parser.add_argument("--minutes", type=float, default=15.0, help="wall-clock budget of each run")
+    parser.add_argument(
+        "--updates",
+        type=int,
+        default=0,
+        help="end each run at this many learner updates, --minutes then only a cap: the machine's speed "
+        "changes the wall time, not the training (a wall-clock budget gives a slower machine fewer updates)",
+    )
     parser.add_argument("--eval-every", type=int, default=500, help="learner updates between evaluations")
     parser.add_argument("--out", type=Path, default=Path("docs/results/runs"), help="where summaries go (commit these)")
     parser.add_argument("--work", type=Path, default=Path("runs/study"), help="scratch: run folders, checkpoints")
@@ -185,7 +202,10 @@ def main() -> None:
     for seed in args.seeds:  # seed-major: a partial study has every variant at its first seeds
         for variant in args.variants:
             print(
-                run_job(variant, seed, args.minutes, args.eval_every, args.out, args.work, args.overrides), flush=True
+                run_job(
+                    variant, seed, args.minutes, args.eval_every, args.out, args.work, args.overrides, args.updates
+                ),
+                flush=True,
             )
 
 
