@@ -136,3 +136,24 @@ def test_short_training_then_eval_and_comparison_of_its_checkpoint_write_tables_
     assert f"| gvf_ddpg | 0 | {record['progress']['updates']} |" in table  # the run's staying-good row, its updates
     for name in ("curve_reward_per_s", "curve_episode_length", "curve_offcenteredness", "lane_centeredness_final"):
         assert (tmp_path / "results" / f"{name}.png").stat().st_size > 1000
+
+
+def test_equal_updates_cuts_every_run_at_the_same_update_count():
+    from actors.evaluation.equal_updates import at_cut
+
+    def run(laps_per_eval):
+        drives = [{"track": f"t{i}"} for i in range(12)]
+        evals = [
+            {"updates": 500 * (i + 1), "mean": {"lap_completed": x / 12}, "drives": drives}
+            for i, x in enumerate(laps_per_eval)
+        ]
+        return {"seed": 0, "evaluations": evals, "last": {"clean": {"mean": {"lap_completed": 1.0}, "drives": drives}}}
+
+    fast = run([0, 12, 12, 3, 12, 12, 12, 12])  # the cut at 2,500 keeps 0 12 12 3 12
+    slow = run([0, 0, 0, 0, 0, 12, 12, 12])  # nothing lapped by 2,500
+    a = at_cut([fast, slow], 2500)
+    assert a["last_laps"] == [12, 0] and a["later"] == 3 and a["later_with_11"] == 2
+    assert abs(a["last3_fraction"] - np.mean([(12 + 3 + 12) / 36, 0.0])) < 1e-9
+    assert (
+        at_cut([fast, slow], 4000)["later_with_11"] == 6 + 2
+    )  # 12 3 12 12 12 12 after fast's first; 12 12 after slow's
