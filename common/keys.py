@@ -39,8 +39,9 @@ class Route:
     message: str
     congestion: str
     priority: str
-    """Zenoh priority: the router and every session serve a higher one first, so a weights broadcast
-    or a pause does not queue behind a backlog of transitions (measured: README, capacity)."""
+    """Zenoh priority: sessions and routers send a higher one first on a link, so a stop reaches a
+    learner ahead of the transitions queued towards it and a pause goes out ahead of a weights
+    broadcast (docs/wire.md); weights and transitions cross links in opposite directions."""
     note: str = ""
 
 

@@ -144,7 +144,7 @@ def test_equal_updates_cuts_every_run_at_the_same_update_count():
     def run(laps_per_eval):
         drives = [{"track": f"t{i}"} for i in range(12)]
         evals = [
-            {"updates": 500 * (i + 1), "mean": {"lap_completed": x / 12}, "drives": drives}
+            {"updates": 500 * (i + 1), "minute": 0.5 * (i + 1), "mean": {"lap_completed": x / 12}, "drives": drives}
             for i, x in enumerate(laps_per_eval)
         ]
         return {"seed": 0, "evaluations": evals, "last": {"clean": {"mean": {"lap_completed": 1.0}, "drives": drives}}}
@@ -154,6 +154,5 @@ def test_equal_updates_cuts_every_run_at_the_same_update_count():
     a = at_cut([fast, slow], 2500)
     assert a["last_laps"] == [12, 0] and a["later"] == 3 and a["later_with_11"] == 2
     assert abs(a["last3_fraction"] - np.mean([(12 + 3 + 12) / 36, 0.0])) < 1e-9
-    assert (
-        at_cut([fast, slow], 4000)["later_with_11"] == 6 + 2
-    )  # 12 3 12 12 12 12 after fast's first; 12 12 after slow's
+    later = at_cut([fast, slow], 4000)  # after the first all-12: fast 12 3 12 12 12 12, slow 12 12
+    assert (later["later"], later["later_with_11"]) == (8, 7)

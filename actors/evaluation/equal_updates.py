@@ -1,6 +1,7 @@
 """Variants compared at equal learner updates, from the study's run summaries alone: a wall-clock
 budget buys each variant (and each day's machine) a different number of updates, so every run is
-cut at the same update count and its evaluations after the cut are dropped.
+cut at the same update count and its evaluations after the cut are dropped (a run that ended
+before the cut counts as it ended).
 
     python -m actors.evaluation.equal_updates --cut 8500 11000 \\
         --runs "GVF-DDPG=docs/results/runs/gvf_ddpg" "DDPG-Image=docs/results/runs/ddpg_image" \\
@@ -77,7 +78,10 @@ def main() -> None:
     print("\n".join(lines))
     if args.out is not None:
         args.out.write_text(
-            "# Variants at equal learner updates\n\nBuilt by `python -m actors.evaluation.equal_updates` from the run summaries.\n\n"
+            "# Variants at equal learner updates\n\nBuilt by `python -m actors.evaluation.equal_updates` from the run "
+            "summaries; a run that ended before a cut counts as it ended. Runs:\n\n"
+            + "".join(f"- {spec.partition('=')[0]}: `{spec.partition('=')[2]}`\n" for spec in args.runs)
+            + "\n"
             + "\n".join(lines)
             + "\n"
         )
