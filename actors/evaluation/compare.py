@@ -82,6 +82,7 @@ def staying_good(record: dict) -> dict:
         "last_near_out_of_lane": clean.get("mean", {}).get("near_out_of_lane"),
         "last_offcenteredness": clean.get("mean", {}).get("offcenteredness"),
         "evaluations_after": len(after),
+        "after_with_11": sum(x >= n - 1 for x in after),
         "fraction_after_with_11": (sum(x >= n - 1 for x in after) / len(after)) if after else None,
         "selected_laps": (
             round(record["selected"]["clean"]["mean"]["lap_completed"] * n) if record.get("selected") else None

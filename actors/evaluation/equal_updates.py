@@ -29,14 +29,12 @@ def at_cut(records: list[dict], updates: int) -> dict:
     the evaluations after each run's first all-lap one and how many of them lapped >= 11 of 12."""
     good = [staying_good(cut(r, updates)) for r in records]
     laps = [g["laps_per_evaluation"] for g in good if g["laps_per_evaluation"]]
-    after = [g["evaluations_after"] for g in good]
-    held = [round(g["fraction_after_with_11"] * g["evaluations_after"]) if g["evaluations_after"] else 0 for g in good]
     return {
         "runs": len(laps),
         "last_laps": [x[-1] for x in laps],
         "last3_fraction": float(np.mean([np.mean(x[-3:]) / 12 for x in laps])) if laps else None,
-        "later": sum(after),
-        "later_with_11": sum(held),
+        "later": sum(g["evaluations_after"] for g in good),
+        "later_with_11": sum(g["after_with_11"] for g in good),
     }
 
 
