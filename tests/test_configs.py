@@ -85,6 +85,20 @@ def test_a_study_job_with_an_update_budget_ends_the_run_there_and_records_it(tmp
     assert record["updates_budget"] == 17800 and record["minutes"] == 70 and record["evaluations"] == []
 
 
+def test_a_rerun_study_job_moves_an_interrupted_attempt_aside_instead_of_mixing_it_in(tmp_path, monkeypatch):
+    import json
+
+    from actors.evaluation import study
+
+    stale = tmp_path / "work" / "gvf_ddpg-seed2"
+    stale.mkdir(parents=True)
+    (stale / "eval.jsonl").write_text(json.dumps({"updates": 500, "mean": {}, "drives": []}) + "\n")
+    monkeypatch.setattr(study.subprocess, "run", lambda cmd, **kw: None)
+    record = json.loads(study.run_job("gvf_ddpg", 2, 15, 500, tmp_path / "runs", tmp_path / "work", []).read_text())
+    (aside,) = (tmp_path / "work").glob("gvf_ddpg-seed2.interrupted-*")
+    assert record["evaluations"] == [] and (aside / "eval.jsonl").exists()  # nothing of the old attempt lost
+
+
 def test_a_run_made_outside_the_study_is_adopted_with_minutes_from_its_start(tmp_path):
     import json
     import os

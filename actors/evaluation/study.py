@@ -5,7 +5,8 @@ every table and figure; checkpoints stay in the scratch folder and are never com
     python -m actors.evaluation.study --variants gvf_ddpg ddpg_image --seeds 0 1 2 3 4 --minutes 15
     python -m actors.evaluation.compare docs/results/runs
 
-A job whose summary exists is skipped, so an interrupted study continues where it stopped. A
+A job whose summary exists is skipped, so an interrupted study continues where it stopped (the
+interrupted job starts again; its partial folder is moved aside as `<job>.interrupted-<time>`). A
 summary holds the run's periodic evaluations (minute, updates, test and validation metrics,
 per road: lap, episode length, where the drive ended) and the final policies (the last
 checkpoint and the validation-selected best-policy.pt) driven on the test roads, clean and with
@@ -137,6 +138,11 @@ def run_job(
         print(f"skip {variant} seed {seed}: {path} exists", flush=True)
         return path
     run_dir = work / f"{variant}-seed{seed}"
+    if run_dir.exists() and any(run_dir.iterdir()):
+        # an interrupted attempt: its eval.jsonl (appended to) and checkpoints would leak into this summary
+        aside = run_dir.with_name(f"{run_dir.name}.interrupted-{time.strftime('%Y%m%dT%H%M%S')}")
+        run_dir.rename(aside)
+        print(f"an interrupted attempt of {variant} seed {seed} moved to {aside}", flush=True)
     run_dir.mkdir(parents=True, exist_ok=True)
     cmd = [
         str(BIN / "gvf-train"),
