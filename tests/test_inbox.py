@@ -10,7 +10,7 @@ import pytest
 
 from common.keys import Keys
 from common.transport.inbox import BoundedInbox
-from tests.test_transport import client_cfg, router_port, wait_for  # noqa: F401 (router_port: fixture)
+from tests.transport_helpers import client_cfg, router_port, wait_for  # noqa: F401 (router_port: fixture)
 
 
 def test_inbox_drops_and_counts_when_full():
