@@ -156,3 +156,26 @@ def test_equal_updates_cuts_every_run_at_the_same_update_count():
     assert abs(a["last3_fraction"] - np.mean([(12 + 3 + 12) / 36, 0.0])) < 1e-9
     later = at_cut([fast, slow], 4000)  # after the first all-12: fast 12 3 12 12 12 12, slow 12 12
     assert (later["later"], later["later_with_11"]) == (8, 7)
+
+
+def test_speed_tradeoff_measures_each_speed_and_finds_what_the_discount_pays_for():
+    from actors.evaluation.speed_tradeoff import bins, preferred
+
+    def evaluation(speed, reward, failed):
+        drives = [{"lap_completed": 0.0 if i < failed else 1.0, "episode_length": 500} for i in range(12)]
+        mean = {"lap_completed": (12 - failed) / 12, "average_speed": speed, "reward_per_step": reward}
+        return {"updates": 500, "minute": 1.0, "mean": mean, "drives": drives}
+
+    before = [evaluation(15.2, 0.7, 6)]  # before the first all-lap evaluation: not counted
+    later = [evaluation(10.2, 0.5, 0), evaluation(13.2, 0.65, 3)] * 4 + [evaluation(10.3, 0.5, 0)]
+    per_bin = bins([{"seed": 0, "evaluations": [*before, evaluation(10.1, 0.5, 0), *later], "last": None}])
+    assert sorted(per_bin) == [10.0, 13.0]
+    slow, fast = per_bin[10.0], per_bin[13.0]
+    assert (slow["evaluations"], slow["with_11"], slow["p"]) == (5, 5, 0.0)
+    assert (fast["evaluations"], fast["with_11"], fast["failures"]) == (4, 0, 12) and fast["p"] == 12 / 24000
+    assert abs(fast["r"] - 0.65) < 1e-12
+    # the paper's discount pays for the speed that loses 3 laps of 12; a longer one or a crash penalty does not
+    assert preferred(per_bin, 0.99, min_evaluations=1) == 13.0
+    assert preferred(per_bin, 0.999, min_evaluations=1) == 10.0
+    assert preferred(per_bin, 0.99, penalty=300, min_evaluations=1) == 10.0
+    assert preferred(per_bin, 0.99, min_evaluations=5) == 10.0  # the fast bin holds too few evaluations
