@@ -21,6 +21,7 @@ from __future__ import annotations
 import argparse
 import json
 import math
+import sys
 from pathlib import Path
 
 from actors.evaluation.compare import staying_good
@@ -105,7 +106,9 @@ def main(argv: list[str] | None = None) -> None:
     if not records:
         raise SystemExit(f"no {args.variant} run summaries (seed*.json) under {', '.join(map(str, args.dirs))}")
     per_bin = bins(records, args.width)
-    lines = [
+    command = " ".join(["python -m actors.evaluation.speed_tradeoff", *(argv if argv is not None else sys.argv[1:])])
+    lines = ["# What the discounted objective pays for", "", f"Built by `{command}`.", ""]
+    lines += [
         f"{len(records)} {args.variant} runs; {sum(b['evaluations'] for b in per_bin.values())} later evaluations",
         "",
     ]
