@@ -12,8 +12,8 @@ prefers; where that bin laps >= 11 less often than the holding target asks, a po
 towards it is optimising its objective, not falling apart. A model: p and r are those of the
 policies the runs made at that speed, not of the best policy at each speed.
 
-    python -m actors.evaluation.speed_tradeoff docs/results/levers/bootstrap-bound/gvf_ddpg \\
-        --gammas 0.99 0.995 0.999 --penalties 0 10 100 --out docs/results/speed-tradeoff.md
+    python -m actors.evaluation.speed_tradeoff docs/results/levers docs/results/before-bound docs/results/runs \\
+        --gammas 0.99 0.995 0.999 --penalties 0 10 300 --out docs/results/speed-tradeoff.md
 """
 
 from __future__ import annotations
@@ -31,10 +31,10 @@ def bins(records: list[dict], width: float = 0.5) -> dict[float, dict]:
     """Per speed bin (its lower edge, m/s) of the later evaluations: counts, p and r."""
     out: dict[float, dict] = {}
     for record in records:
-        laps = staying_good(record)["laps_per_evaluation"]
-        n = len(record["evaluations"][0]["drives"]) if laps else 12
-        first = laps.index(n) if n in laps else len(laps)
-        for e, lapped in zip(record["evaluations"][first + 1 :], laps[first + 1 :], strict=True):
+        good = staying_good(record)
+        laps, n = good["laps_per_evaluation"], len(record["evaluations"][0]["drives"]) if record["evaluations"] else 12
+        start = len(laps) - good["evaluations_after"]  # staying_good's "later": after the first all-lap one
+        for e, lapped in zip(record["evaluations"][start:], laps[start:], strict=True):
             b = out.setdefault(
                 round(math.floor(e["mean"]["average_speed"] / width) * width, 3),
                 {"evaluations": 0, "with_11": 0, "failures": 0, "steps": 0.0, "reward": 0.0},
