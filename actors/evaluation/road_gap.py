@@ -1,0 +1,156 @@
+"""Does a policy that fails the test roads still drive the roads it was trained on?
+
+Each checkpoint's policy drives one lap of every train road, test road and validation road in
+both directions, without exploration. Per set of roads: laps, the step-weighted mean speed and
+the per-step probability of leaving the road p (failed drives / steps driven), the quantity the
+objective trades against speed (`actors.evaluation.speed_tradeoff`). If a policy that crept to
+a speed where it fails the test roads still laps the train roads with a p near zero, the
+objective it optimises (on the train roads) has no reason to slow down: the creep is a gap
+between the roads, not only the discount's trade. Resumable: a checkpoint already in the
+cache file is not driven again.
+
+    python -m actors.evaluation.road_gap runs/crash-penalty-300 runs/default-repeat \\
+        --cache docs/results/road-gap.json --out docs/results/road-gap.md
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+from pathlib import Path
+from typing import Callable
+
+import numpy as np
+
+from actors.envs.tracks import track_names
+from actors.evaluation.evaluate import PolicyFn, evaluate
+from actors.evaluation.main import eval_env_kwargs
+from common.config.run import RunConfig
+
+SPLITS = ("train", "test", "validation")
+
+
+def split_summary(results: list[dict]) -> dict[str, float]:
+    """Laps, step-weighted speed and p (failed drives per step driven) of one set of drives."""
+    steps = np.array([r["metrics"]["episode_length"] for r in results], np.float64)
+    speeds = np.array([r["metrics"]["average_speed"] for r in results], np.float64)
+    laps = int(sum(r["metrics"]["lap_completed"] >= 1 for r in results))
+    return {
+        "drives": len(results),
+        "laps": laps,
+        "steps": float(steps.sum()),
+        "speed": float((speeds * steps).sum() / steps.sum()),
+        "p": (len(results) - laps) / float(steps.sum()),
+    }
+
+
+def roads(cfg: RunConfig) -> dict[str, list[str]]:
+    """The train, test and validation roads of a run on LaneDrive."""
+    return {
+        "train": track_names("train"),
+        "test": track_names("test"),
+        "validation": list(cfg.eval.validation_tracks),
+    }
+
+
+def drive_splits(policy: PolicyFn, cfg: RunConfig | None = None, by_split: dict | None = None) -> dict[str, dict]:
+    """`split_summary` of `policy` on each set of roads of `by_split` (default: `roads(cfg)`, a
+    default run's where `cfg` is None), both directions as the run's evaluator drives them."""
+    cfg = cfg or RunConfig()
+    env, directions = eval_env_kwargs(cfg), tuple(cfg.eval.directions)
+    return {
+        split: split_summary(evaluate(policy, directions=directions, tracks=names, **env))
+        for split, names in (by_split or roads(cfg)).items()
+    }
+
+
+def measure_checkpoint(path: Path) -> dict:
+    from actors.evaluation.policies import checkpoint_policy
+
+    policy, meta = checkpoint_policy(path)
+    return {"agent": meta["agent"], "updates": meta["updates"], **drive_splits(policy)}
+
+
+def newest(dirs: list[Path], last: int = 0) -> list[Path]:
+    """The checkpoints (checkpoints/ckpt-*.pt) under `dirs`; with `last`, each run's `last` newest."""
+    runs: dict[Path, list[Path]] = {}
+    for p in sorted({p for d in dirs for p in d.glob("**/checkpoints/ckpt-*.pt")}):
+        runs.setdefault(p.parent, []).append(p)  # names hold zero-padded update counts: sorted is oldest first
+    return [p for ckpts in runs.values() for p in (ckpts[-last:] if last else ckpts)]
+
+
+def measure_all(paths: list[Path], cache: Path | None, measure: Callable[[Path], dict] = measure_checkpoint) -> dict:
+    """Every checkpoint's `measure`, taken from `cache` where already there; the cache is
+    rewritten after each new one (an interrupted pass keeps what it measured)."""
+    done = json.loads(cache.read_text()) if cache and cache.exists() else {}
+    for path in paths:
+        if str(path) in done:
+            continue
+        done[str(path)] = measure(path)
+        if cache:
+            cache.write_text(json.dumps(done, indent=1, sort_keys=True) + "\n")
+    return {str(p): done[str(p)] for p in paths}
+
+
+def report(measured: dict[str, dict], fail_below: int = 11) -> list[str]:
+    lines = [
+        "| checkpoint | updates | test laps | test speed | test p (x 1e-4) | train laps | train speed "
+        "| train p (x 1e-4) | validation laps | validation p (x 1e-4) |",
+        "|" + " --- |" * 10,
+    ]
+    for path, m in measured.items():
+        t, tr, v = m["test"], m["train"], m["validation"]
+        lines.append(
+            f"| {path} | {m['updates']} | {t['laps']}/{t['drives']} | {t['speed']:.1f} | {t['p'] * 1e4:.1f} "
+            f"| {tr['laps']}/{tr['drives']} | {tr['speed']:.1f} | {tr['p'] * 1e4:.1f} "
+            f"| {v['laps']}/{v['drives']} | {v['p'] * 1e4:.1f} |"
+        )
+    for name, keep in (
+        (f"failing the test roads (< {fail_below} laps)", lambda m: m["test"]["laps"] < fail_below),
+        (f"holding the test roads (>= {fail_below} laps)", lambda m: m["test"]["laps"] >= fail_below),
+    ):
+        group = [m for m in measured.values() if keep(m)]
+        if not group:
+            continue
+        pooled = {s: _pool([m[s] for m in group]) for s in SPLITS}
+        lines += [
+            "",
+            f"Pooled over the {len(group)} checkpoints {name}: "
+            + "; ".join(
+                f"{s} {pooled[s]['laps']}/{pooled[s]['drives']} laps, {pooled[s]['speed']:.1f} m/s, "
+                f"p {pooled[s]['p'] * 1e4:.1f}e-4"
+                for s in SPLITS
+            ),
+        ]
+    return lines
+
+
+def _pool(parts: list[dict]) -> dict:
+    drives, laps = sum(p["drives"] for p in parts), sum(p["laps"] for p in parts)
+    steps = sum(p["steps"] for p in parts)
+    speed = sum(p["speed"] * p["steps"] for p in parts) / steps
+    return {"drives": drives, "laps": laps, "steps": steps, "speed": speed, "p": (drives - laps) / steps}
+
+
+def main(argv: list[str] | None = None) -> None:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap.add_argument("dirs", nargs="+", type=Path, help="run folders; their checkpoints/ckpt-*.pt are driven")
+    ap.add_argument("--cache", type=Path, help="JSON of the checkpoints measured so far (read and extended)")
+    ap.add_argument("--last", type=int, default=0, help="only each run's this many newest checkpoints (0: all)")
+    ap.add_argument("--out", type=Path)
+    args = ap.parse_args(argv)
+    paths = newest(args.dirs, args.last)
+    if not paths:
+        raise SystemExit(f"no checkpoints (checkpoints/ckpt-*.pt) under {', '.join(map(str, args.dirs))}")
+    measured = measure_all(paths, args.cache)
+    command = " ".join(["python -m actors.evaluation.road_gap", *(argv if argv is not None else sys.argv[1:])])
+    lines = ["# Train roads against test roads, per checkpoint", "", f"Built by `{command}`.", ""]
+    lines += report(measured)
+    print("\n".join(lines))
+    if args.out:
+        args.out.write_text("\n".join(lines) + "\n")
+
+
+if __name__ == "__main__":
+    main()
