@@ -26,6 +26,7 @@ import numpy as np
 from actors.envs.tracks import track_names
 from actors.evaluation.evaluate import PolicyFn, evaluate
 from actors.evaluation.main import eval_env_kwargs
+from actors.evaluation.policies import checkpoint_policy
 from common.config.run import RunConfig
 
 SPLITS = ("train", "test", "validation")
@@ -66,8 +67,6 @@ def drive_splits(policy: PolicyFn, cfg: RunConfig | None = None, by_split: dict 
 
 
 def measure_checkpoint(path: Path) -> dict:
-    from actors.evaluation.policies import checkpoint_policy
-
     policy, meta = checkpoint_policy(path)
     return {"agent": meta["agent"], "updates": meta["updates"], **drive_splits(policy)}
 
