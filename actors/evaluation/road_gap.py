@@ -9,7 +9,7 @@ objective it optimises (on the train roads) has no reason to slow down: the cree
 between the roads, not only the discount's trade. Resumable: a checkpoint already in the
 cache file is not driven again.
 
-    python -m actors.evaluation.road_gap runs/crash-penalty-300 runs/default-repeat \\
+    python -m actors.evaluation.road_gap runs/crash-penalty-300 runs/default-repeat --last 3 \\
         --cache docs/results/road-gap.json --out docs/results/road-gap.md
 """
 
@@ -20,8 +20,6 @@ import json
 import sys
 from pathlib import Path
 from typing import Callable
-
-import numpy as np
 
 from actors.envs.tracks import track_names
 from actors.evaluation.evaluate import PolicyFn, evaluate
@@ -34,16 +32,25 @@ SPLITS = ("train", "test", "validation")
 
 def split_summary(results: list[dict]) -> dict[str, float]:
     """Laps, step-weighted speed and p (failed drives per step driven) of one set of drives."""
-    steps = np.array([r["metrics"]["episode_length"] for r in results], np.float64)
-    speeds = np.array([r["metrics"]["average_speed"] for r in results], np.float64)
-    laps = int(sum(r["metrics"]["lap_completed"] >= 1 for r in results))
-    return {
-        "drives": len(results),
-        "laps": laps,
-        "steps": float(steps.sum()),
-        "speed": float((speeds * steps).sum() / steps.sum()),
-        "p": (len(results) - laps) / float(steps.sum()),
-    }
+    return pool(
+        [
+            {
+                "drives": 1,
+                "laps": int(r["metrics"]["lap_completed"] >= 1),
+                "steps": float(r["metrics"]["episode_length"]),
+                "speed": float(r["metrics"]["average_speed"]),
+            }
+            for r in results
+        ]
+    )
+
+
+def pool(parts: list[dict]) -> dict:
+    """Drives, laps and steps summed, speed weighted by steps, p = failed drives per step."""
+    drives, laps = sum(p["drives"] for p in parts), sum(p["laps"] for p in parts)
+    steps = sum(p["steps"] for p in parts)
+    speed = sum(p["speed"] * p["steps"] for p in parts) / steps
+    return {"drives": drives, "laps": laps, "steps": steps, "speed": speed, "p": (drives - laps) / steps}
 
 
 def roads(cfg: RunConfig) -> dict[str, list[str]]:
@@ -112,7 +119,7 @@ def report(measured: dict[str, dict], fail_below: int = 11) -> list[str]:
         group = [m for m in measured.values() if keep(m)]
         if not group:
             continue
-        pooled = {s: _pool([m[s] for m in group]) for s in SPLITS}
+        pooled = {s: pool([m[s] for m in group]) for s in SPLITS}
         lines += [
             "",
             f"Pooled over the {len(group)} checkpoints {name}: "
@@ -123,13 +130,6 @@ def report(measured: dict[str, dict], fail_below: int = 11) -> list[str]:
             ),
         ]
     return lines
-
-
-def _pool(parts: list[dict]) -> dict:
-    drives, laps = sum(p["drives"] for p in parts), sum(p["laps"] for p in parts)
-    steps = sum(p["steps"] for p in parts)
-    speed = sum(p["speed"] * p["steps"] for p in parts) / steps
-    return {"drives": drives, "laps": laps, "steps": steps, "speed": speed, "p": (drives - laps) / steps}
 
 
 def main(argv: list[str] | None = None) -> None:
