@@ -21,9 +21,10 @@ import sys
 from pathlib import Path
 from typing import Callable
 
-from actors.envs.tracks import track_names
+from actors.envs.simulators import road_names
 from actors.evaluation.evaluate import PolicyFn, evaluate
 from actors.evaluation.main import eval_env_kwargs
+from actors.evaluation.periodic import validation_roads
 from actors.evaluation.policies import checkpoint_policy
 from common.config.run import RunConfig
 
@@ -54,11 +55,11 @@ def pool(parts: list[dict]) -> dict:
 
 
 def roads(cfg: RunConfig) -> dict[str, list[str]]:
-    """The train, test and validation roads of a run on LaneDrive."""
+    """The train, test and validation roads of a run, as its actors and evaluator name them."""
     return {
-        "train": track_names("train"),
-        "test": track_names("test"),
-        "validation": list(cfg.eval.validation_tracks),
+        "train": road_names(cfg.env, "train"),
+        "test": road_names(cfg.env, "test"),
+        "validation": validation_roads(cfg),
     }
 
 
