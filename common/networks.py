@@ -36,11 +36,11 @@ LOW_DIM = 3  # speed (1) + last action (2), joined after the conv trunk
 PILOTNET_LAYERS = ((5, 2), (5, 2), (5, 2), (3, 1), (3, 1))  # (kernel, stride)
 
 
-def mlp(in_dim: int, hidden: Sequence[int], out_dim: int) -> nn.Sequential:
-    """ReLU hidden layers, linear output."""
+def mlp(in_dim: int, hidden: Sequence[int], out_dim: int, norm: bool = False) -> nn.Sequential:
+    """ReLU hidden layers, linear output; with `norm` a LayerNorm before each ReLU."""
     layers: list[nn.Module] = []
     for width in hidden:
-        layers += [nn.Linear(in_dim, width), nn.ReLU()]
+        layers += [nn.Linear(in_dim, width), *([nn.LayerNorm(width)] if norm else []), nn.ReLU()]
         in_dim = width
     layers.append(nn.Linear(in_dim, out_dim))
     return nn.Sequential(*layers)
@@ -138,11 +138,16 @@ class BranchedActor(nn.Module):
 
 
 class BranchedCritic(nn.Module):
-    """Q(x, a): sum of `n_branches` MLP branches on [x, a]; linear output (B, 1)."""
+    """Q(x, a): sum of `n_branches` MLP branches on [x, a]; linear output (B, 1).
 
-    def __init__(self, in_dim: int, hidden: Sequence[int], n_actions: int = ACTION_DIM, n_branches: int = 2):
+    `norm` puts a LayerNorm before each hidden ReLU (Ball et al. 2023): |Q| is then bounded by the
+    last layer's weights wherever the input goes, so the actor cannot climb an extrapolation."""
+
+    def __init__(
+        self, in_dim: int, hidden: Sequence[int], n_actions: int = ACTION_DIM, n_branches: int = 2, norm: bool = False
+    ):
         super().__init__()
-        self.branches = nn.ModuleList(mlp(in_dim + n_actions, hidden, 1) for _ in range(n_branches))
+        self.branches = nn.ModuleList(mlp(in_dim + n_actions, hidden, 1, norm) for _ in range(n_branches))
 
     def forward(self, x: Tensor, action: Tensor) -> Tensor:
         xa = torch.cat([x, action], -1)
@@ -180,10 +185,10 @@ class ImageActor(nn.Module):
 class ImageCritic(nn.Module):
     """DDPG-Image / LowDim critic: the behaviour network's shape, encoder then 512-256-1."""
 
-    def __init__(self, encoder: ImageEncoder, hidden: Sequence[int]):
+    def __init__(self, encoder: ImageEncoder, hidden: Sequence[int], norm: bool = False):
         super().__init__()
         self.encoder = encoder
-        self.head = BranchedCritic(encoder.out_dim, hidden, n_branches=1)
+        self.head = BranchedCritic(encoder.out_dim, hidden, n_branches=1, norm=norm)
 
     def forward(
         self, image: Tensor, speed: Tensor, last_action: Tensor, action: Tensor, lowdim: Tensor | None = None
@@ -276,11 +281,11 @@ def make_networks(agent: AgentConfig, scale: ScaleConfig) -> Networks:
     """Every network of the variant: acting policy, critic, and for GVF-DDPG the GVFs and g."""
     policy = make_policy(agent, scale)
     if agent.representation == "predictive":
-        critic = BranchedCritic(policy.gvf.n_predictions + LOW_DIM, scale.policy_hidden)
+        critic = BranchedCritic(policy.gvf.n_predictions + LOW_DIM, scale.policy_hidden, norm=scale.critic_norm)
         behaviour = BehaviourNetwork(scale.conv_channels, scale.behaviour_hidden)
         return Networks("predictive", policy.actor, critic, policy, policy.gvf, behaviour)
     lowdim = scale.lowdim_width if agent.representation == "lowdim" else 0
-    critic = ImageCritic(ImageEncoder(scale.conv_channels, lowdim), scale.image_policy_hidden)
+    critic = ImageCritic(ImageEncoder(scale.conv_channels, lowdim), scale.image_policy_hidden, scale.critic_norm)
     return Networks(agent.representation, policy.actor, critic, policy)
 
 

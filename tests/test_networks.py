@@ -135,6 +135,25 @@ def test_mirror_actor_is_built_from_the_scale_and_refused_by_an_actor_without_it
     assert "mirror_sign" not in str(list(make_policy(image_agent, on).state_dict()))  # baselines unaffected
 
 
+def test_critic_norm_bounds_q_where_the_plain_critic_extrapolates():
+    torch.manual_seed(0)
+    normed, plain = BranchedCritic(13, [16, 8], norm=True), BranchedCritic(13, [16, 8])
+    x, a = torch.randn(64, 13), torch.randn(64, 2)
+    q = {(c, k): c(x * k, a * k) for c in (normed, plain) for k in (1e2, 1e4)}
+    # LayerNorm is scale-invariant: past the first layer's bias Q stops moving with the input's size
+    assert (q[normed, 1e4] - q[normed, 1e2]).abs().max() < 1e-2
+    assert (q[plain, 1e4] - q[plain, 1e2]).abs().max() > 10.0  # the plain MLP grows with it
+
+
+def test_critic_norm_is_built_from_the_scale_for_every_variant():
+    for variant in ("gvf_ddpg", "ddpg_image"):
+        agent, scale = load(variant, "small")
+        on = make_networks(agent, dataclasses.replace(scale, critic_norm=True)).critic
+        off = make_networks(agent, scale).critic
+        assert any(isinstance(m, torch.nn.LayerNorm) for m in on.modules())
+        assert not any(isinstance(m, torch.nn.LayerNorm) for m in off.modules())
+
+
 def test_critic_is_the_sum_of_its_branches():
     torch.manual_seed(0)
     critic = BranchedCritic(13, [16, 8])

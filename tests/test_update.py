@@ -91,6 +91,22 @@ def test_mirror_actor_trains_and_its_broadcast_drives_the_same(data):
         assert torch.equal(acting(data[:5]), core.nets.policy(data[:5]))
 
 
+def test_critic_norm_trains_with_the_twin_critics(data):
+    core = LearningCore(
+        AgentConfig(name="gvf_ddpg", **VARIANTS["gvf_ddpg"]), dataclasses.replace(TINY, critic_norm=True, td3=True)
+    )
+    core.add(data)
+    params = core.ddpg.loss_module.qvalue_network_params.clone()
+    metrics = {}
+    while not metrics:
+        metrics = core.update()
+    assert all(torch.isfinite(torch.tensor(v)) for v in metrics.values()), metrics
+    moved = [
+        k for k, v in core.ddpg.loss_module.qvalue_network_params.items(True, True) if not torch.equal(v, params[k])
+    ]
+    assert any(k[-2:] == ("1", "weight") for k in moved)  # the LayerNorm's gain (layer 1 of a branch) learns
+
+
 def test_rho_at_insert_is_tau_over_mu_hat_and_clips_are_counted(data):
     core = make_core("gvf_ddpg", rho_max=20.0)
     batch = data[:64]

@@ -109,6 +109,9 @@ class ScaleConfig:
     """GVF-DDPG's actor mirror-equivariant by construction (common.networks.BranchedActor's
     mirror_sign): steering odd, target speed even under negating every prediction and the last
     steering; the image baselines are unaffected (their input would need flipped frames)."""
+    critic_norm: bool = False
+    """A LayerNorm before each hidden ReLU of DDPG's critic (Ball et al. 2023; common.networks.
+    BranchedCritic): Q bounded wherever the actor moves the action; False: the paper's plain MLP."""
     reward_scale: float = 1.0
     """DDPG's reward is multiplied by this (the paper scaled its reward so that action values lie in [-1, 1])."""
     crash_penalty: float = 0.0
