@@ -37,7 +37,7 @@ def network_policy(policy: torch.nn.Module, lowdim: bool):
     return act
 
 
-def _known(schema, values: dict):
+def known_config(schema, values: dict):
     """A config from a checkpoint's saved fields, skipping any this version no longer has (an older file still loads)."""
     names = {f.name for f in dataclasses.fields(schema)}
     return schema(**{k: v for k, v in values.items() if k in names})
@@ -49,7 +49,7 @@ def checkpoint_policy(path: str | Path):
     state = checkpoint.load(path)
     if "policy" not in state:
         raise ValueError(f"{path} holds no policy weights (written by an older learner?)")
-    agent, scale = _known(AgentConfig, state["agent"]), _known(ScaleConfig, state["scale"])
+    agent, scale = known_config(AgentConfig, state["agent"]), known_config(ScaleConfig, state["scale"])
     if "offline" in state:  # gvf-offline: GVF-BCQ or E2E-BCQ
         offline = state["offline"]
         policy = make_offline_policy(offline["method"], agent, scale, offline["build"]).eval()

@@ -1,0 +1,202 @@
+"""What did the critic say in the seconds before the policy left the road?
+
+Each checkpoint's policy drives the test and validation roads without exploration, and at every
+step its own critic (the first of TD3's twins: the one the actor climbs) is read at phi(s) with
+the policy's action and with the target speed swept over its range, the steering kept:
+
+- `q_minus_return`: Q1(s, pi(s)) less the discounted return the drive then collected (DDPG's
+  reward: crash penalty and reward scale applied). At steps before a crash a critic that charges
+  the crash comes out near 0; a large positive gap is a critic that did not see it coming.
+- `preferred_speed`: the target speed (m/s) where Q1 peaks along the sweep, less the policy's.
+  Negative before a crash: the critic already wanted to slow down and the actor did not follow.
+- `dq_dspeed`: the sign of dQ1/d(target speed) at pi(s), the direction the actor's next step moves.
+
+"pre-crash" is the window of steps `--before` (default 30 to 5) before a termination; "lapping" is
+every step of a completed lap at least `--horizon` steps before its end (the return there is
+complete to gamma^horizon). If the creep is a critic that does not (yet, or any more) charge the
+fast bends, pre-crash steps show a large positive gap and a preferred speed at or above the
+policy's; if it is the actor lagging a critic that does, the preferred speed is below it.
+
+    python -m actors.evaluation.critic_probe runs/crash-penalty-300 runs/default-repeat --last 3 \\
+        --cache docs/results/critic-probe.json --out docs/results/critic-probe.md
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+from pathlib import Path
+
+import numpy as np
+import torch
+
+from actors.evaluation.evaluate import evaluate
+from actors.evaluation.main import eval_env_kwargs
+from actors.evaluation.policies import known_config
+from actors.evaluation.road_gap import measure_all, newest, roads
+from common import checkpoint
+from common.config.agent import AgentConfig, ScaleConfig, step_sizes
+from common.config.run import RunConfig
+from common.networks import make_networks, phi
+
+SPEED_GRID = torch.linspace(-1.0, 1.0, 21)  # target-speed actions swept at every step
+Q_PREFIX = "qvalue_network_params.module."  # torchrl's loss module keeps the critics' weights here
+
+
+def discounted_returns(rewards: np.ndarray, discount: float) -> np.ndarray:
+    """G_t = r_t + discount * G_{t+1}, zero after the last step (a termination or the drive's end)."""
+    out, g = np.zeros(len(rewards), np.float64), 0.0
+    for t in range(len(rewards) - 1, -1, -1):
+        g = rewards[t] + discount * g
+        out[t] = g
+    return out
+
+
+def load_critic(state: dict, agent: AgentConfig, scale: ScaleConfig):
+    """The acting policy and the critic the actor maximises, from a learner checkpoint."""
+    nets = make_networks(agent, scale)
+    nets.policy.load_state_dict(state["policy"])
+    loss = state["core"]["ddpg"]["loss"]
+    if scale.td3:  # the twins are stacked (2, ...) in the loss module; TD3's actor climbs the first
+        nets.critic.load_state_dict({k[len(Q_PREFIX) :]: v[0] for k, v in loss.items() if k.startswith(Q_PREFIX)})
+    else:
+        nets.critic.load_state_dict(state["core"]["critic"])
+    return nets.policy.eval(), nets.critic.eval()
+
+
+def recording_policy(policy: torch.nn.Module, record: list):
+    """A PolicyFn of the predictive `policy` that appends each step's (phi, action) to `record`."""
+
+    @torch.no_grad()
+    def act(obs: dict, info: dict) -> np.ndarray:
+        image, speed, last = (torch.from_numpy(np.asarray(obs[k])) for k in ("image", "speed", "last_action"))
+        x = phi(policy.gvf(image, speed, last), speed, last)
+        action = policy.actor(x).clamp(-1.0, 1.0)
+        record.append((x, action))
+        return action.numpy()
+
+    return act
+
+
+def probe_steps(critic: torch.nn.Module, x: torch.Tensor, action: torch.Tensor) -> dict[str, np.ndarray]:
+    """Per step: Q1 at the action, the sweep's best target-speed action, and dQ1/d(target speed)."""
+    a = action.clone().requires_grad_(True)
+    q = critic(x, a)
+    (grad,) = torch.autograd.grad(q.sum(), a)
+    with torch.no_grad():
+        n, k = len(x), len(SPEED_GRID)
+        swept = action.repeat_interleave(k, 0)
+        swept[:, 1] = SPEED_GRID.repeat(n)
+        q_sweep = critic(x.repeat_interleave(k, 0), swept).reshape(n, k)
+    return {
+        "q": q.detach().reshape(-1).numpy(),
+        "best_speed_action": SPEED_GRID[q_sweep.argmax(1)].numpy(),
+        "dq_dspeed": grad[:, 1].numpy(),
+    }
+
+
+def summarise(
+    drives: list[dict], probes: list[dict], discount: float, v_max: float, before=(30, 5), horizon: int = 300
+) -> dict:
+    """Pool the probes of the pre-crash windows and of the lapping steps (see the module doc)."""
+    parts: dict[str, list] = {"pre_crash": [], "lapping": []}
+    for drive, probe in zip(drives, probes):
+        g = discounted_returns(drive["ddpg_reward"], discount)
+        n = len(g)
+        if drive["metrics"]["lap_completed"] >= 1:
+            keep, name = np.arange(max(0, n - horizon)), "lapping"
+        elif drive["terminated"]:
+            keep, name = np.arange(max(0, n - before[0]), max(0, n - before[1])), "pre_crash"
+        else:
+            continue
+        speed_gap = (probe["best_speed_action"] - drive["trace"]["action"][:, 1]) * 0.25 * v_max  # m/s per unit
+        parts[name].append(
+            np.stack([probe["q"][keep] - g[keep], speed_gap[keep], np.sign(probe["dq_dspeed"][keep])], 1)
+        )
+    out = {}
+    for name, chunks in parts.items():
+        rows = np.concatenate(chunks) if chunks else np.zeros((0, 3))
+        out[name] = {
+            "drives": len(chunks),
+            "steps": len(rows),
+            "q_minus_return": float(rows[:, 0].mean()) if len(rows) else None,
+            "preferred_speed": float(rows[:, 1].mean()) if len(rows) else None,
+            "slower_preferred": float((rows[:, 1] < 0).mean()) if len(rows) else None,
+            "dq_dspeed_positive": float((rows[:, 2] > 0).mean()) if len(rows) else None,
+        }
+    return out
+
+
+def measure_checkpoint(path: Path, cfg: RunConfig | None = None, splits=("test", "validation")) -> dict:
+    state = checkpoint.load(checkpoint.find(path))
+    agent, scale = known_config(AgentConfig, state["agent"]), known_config(ScaleConfig, state["scale"])
+    if agent.representation != "predictive":
+        raise SystemExit(f"{path}: the probe reads phi(s); {agent.name} has no predictive representation")
+    cfg = cfg or RunConfig()
+    policy, critic = load_critic(state, agent, scale)
+    names = [n for s in splits for n in roads(cfg)[s]]
+    record: list = []
+    drives = evaluate(
+        recording_policy(policy, record), directions=tuple(cfg.eval.directions), tracks=names, **eval_env_kwargs(cfg)
+    )
+    probes = []
+    for i, drive in enumerate(drives):
+        n = len(drive["trace"]["reward"])
+        x = torch.stack([record[t][0][i] for t in range(n)])
+        action = torch.from_numpy(drive["trace"]["action"])
+        probes.append(probe_steps(critic, x, action))
+        drive["terminated"] = drive["metrics"]["lap_completed"] < 1 and n < cfg.env.max_steps
+        crash = np.zeros(n)
+        crash[-1] = scale.crash_penalty * drive["terminated"]
+        drive["ddpg_reward"] = (drive["trace"]["reward"] - crash) * scale.reward_scale
+    laps = sum(int(d["metrics"]["lap_completed"] >= 1) for d in drives)
+    discount = step_sizes(agent, scale)["discount"]
+    return {
+        "agent": agent.name,
+        "updates": state["core"]["updates"],
+        "laps": laps,
+        "drives": len(drives),
+        **summarise(drives, probes, discount, cfg.env.vehicle.v_max),
+    }
+
+
+def report(measured: dict[str, dict]) -> list[str]:
+    def cell(m: dict, key: str, fmt: str) -> str:
+        return "-" if m[key] is None else format(m[key], fmt)
+
+    lines = [
+        "| checkpoint | updates | laps | pre-crash steps | Q - G pre-crash | Q - G lapping | preferred - driven "
+        "speed pre-crash (m/s) | lapping | slower preferred pre-crash | dQ/dv > 0 pre-crash | lapping |",
+        "|" + " --- |" * 11,
+    ]
+    for path, m in measured.items():
+        c, lap = m["pre_crash"], m["lapping"]
+        lines.append(
+            f"| {path} | {m['updates']} | {m['laps']}/{m['drives']} | {c['steps']} | {cell(c, 'q_minus_return', '.2f')} "
+            f"| {cell(lap, 'q_minus_return', '.2f')} | {cell(c, 'preferred_speed', '+.1f')} "
+            f"| {cell(lap, 'preferred_speed', '+.1f')} | {cell(c, 'slower_preferred', '.2f')} "
+            f"| {cell(c, 'dq_dspeed_positive', '.2f')} | {cell(lap, 'dq_dspeed_positive', '.2f')} |"
+        )
+    return lines
+
+
+def main(argv: list[str] | None = None) -> None:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap.add_argument("dirs", nargs="+", type=Path, help="run folders; their checkpoints/ckpt-*.pt are probed")
+    ap.add_argument("--cache", type=Path, help="JSON of the checkpoints probed so far (read and extended)")
+    ap.add_argument("--last", type=int, default=0, help="only each run's this many newest checkpoints (0: all)")
+    ap.add_argument("--out", type=Path)
+    args = ap.parse_args(argv)
+    paths = newest(args.dirs, args.last)
+    if not paths:
+        raise SystemExit(f"no checkpoints (checkpoints/ckpt-*.pt) under {', '.join(map(str, args.dirs))}")
+    measured = measure_all(paths, args.cache, measure_checkpoint)
+    command = " ".join(["python -m actors.evaluation.critic_probe", *(argv if argv is not None else sys.argv[1:])])
+    lines = ["# The critic before each crash, per checkpoint", "", f"Built by `{command}`.", "", *report(measured)]
+    print("\n".join(lines))
+    if args.out:
+        args.out.write_text("\n".join(lines) + "\n")
+
+
+if __name__ == "__main__":
+    main()

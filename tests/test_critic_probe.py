@@ -1,0 +1,59 @@
+"""critic_probe: the critic read along a policy's own drives, before its crashes and on its laps."""
+
+import dataclasses
+
+import numpy as np
+import pytest
+import torch
+
+from actors.evaluation.critic_probe import discounted_returns, probe_steps, recording_policy, summarise
+from actors.evaluation.evaluate import evaluate
+from common.config.agent import AgentConfig
+from common.networks import make_policy
+from tests.core_fixtures import TINY, VARIANTS
+
+
+def test_returns_are_discounted_to_the_drives_end():
+    assert np.allclose(discounted_returns(np.array([1.0, 1.0, 1.0]), 0.5), [1.75, 1.5, 1.0])
+
+
+class PeakedCritic(torch.nn.Module):
+    """Q(x, a) = -(a_speed - x0)^2: the best target speed is x0, whatever the steering."""
+
+    def forward(self, x, a):
+        return -((a[:, 1:] - x[:, :1]) ** 2)
+
+
+def test_the_sweep_finds_the_critics_best_speed_and_the_gradients_sign():
+    x = torch.tensor([[-0.5], [0.3], [0.9]])
+    action = torch.tensor([[0.2, 0.0], [0.1, 0.8], [-0.4, 0.9]])
+    probe = probe_steps(PeakedCritic(), x, action)
+    assert np.allclose(probe["best_speed_action"], [-0.5, 0.3, 0.9], atol=1e-6)
+    assert np.allclose(probe["q"], [-0.25, -0.25, 0.0], atol=1e-6)
+    assert list(np.sign(probe["dq_dspeed"])) == [-1.0, -1.0, 0.0]  # too fast, too fast, at the peak
+
+
+def test_windows_pool_pre_crash_and_lapping_steps():
+    n = 40
+    crash = {"metrics": {"lap_completed": 0.0}, "terminated": True, "ddpg_reward": np.ones(n)}
+    lap = {"metrics": {"lap_completed": 1.0}, "terminated": False, "ddpg_reward": np.ones(n)}
+    for drive in (crash, lap):
+        drive["trace"] = {"action": np.zeros((n, 2), np.float32)}
+    probe = {"q": np.full(n, 10.0), "best_speed_action": np.full(n, -1.0), "dq_dspeed": np.full(n, 2.0)}
+    out = summarise([crash, lap], [probe, probe], discount=0.0, v_max=20.0, before=(30, 5), horizon=10)
+    assert out["pre_crash"]["steps"] == 25 and out["lapping"]["steps"] == 30
+    for part in out.values():  # discount 0: G = 1 at every step; -1 of the action is 5 m/s below 0
+        assert part["q_minus_return"] == pytest.approx(9.0) and part["preferred_speed"] == pytest.approx(-5.0)
+        assert part["slower_preferred"] == 1.0 and part["dq_dspeed_positive"] == 1.0
+
+
+def test_the_recorded_phi_and_actions_are_the_drives_own():
+    torch.manual_seed(0)
+    policy = make_policy(AgentConfig(name="gvf_ddpg", **VARIANTS["gvf_ddpg"]), dataclasses.replace(TINY)).eval()
+    record = []
+    drives = evaluate(recording_policy(policy, record), tracks=["sage"], max_steps=30)
+    assert len(drives) == 2 and len(record) == max(len(d["trace"]["reward"]) for d in drives)
+    for i, drive in enumerate(drives):
+        recorded = np.stack([record[t][1][i].numpy() for t in range(len(drive["trace"]["action"]))])
+        assert np.array_equal(recorded, drive["trace"]["action"])
+        assert record[0][0].shape == (2, policy.gvf.n_predictions + 3)  # phi: predictions, speed, last action
