@@ -23,8 +23,6 @@ policy's; if it is the actor lagging a critic that does, the preferred speed is 
 
 from __future__ import annotations
 
-import argparse
-import sys
 from pathlib import Path
 
 import numpy as np
@@ -33,7 +31,7 @@ import torch
 from actors.evaluation.evaluate import evaluate
 from actors.evaluation.main import eval_env_kwargs
 from actors.evaluation.policies import known_config
-from actors.evaluation.road_gap import measure_all, newest, roads
+from actors.evaluation.road_gap import checkpoint_tool, roads
 from common import checkpoint
 from common.config.agent import AgentConfig, ScaleConfig, step_sizes
 from common.config.run import RunConfig
@@ -181,21 +179,14 @@ def report(measured: dict[str, dict]) -> list[str]:
 
 
 def main(argv: list[str] | None = None) -> None:
-    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    ap.add_argument("dirs", nargs="+", type=Path, help="run folders; their checkpoints/ckpt-*.pt are probed")
-    ap.add_argument("--cache", type=Path, help="JSON of the checkpoints probed so far (read and extended)")
-    ap.add_argument("--last", type=int, default=0, help="only each run's this many newest checkpoints (0: all)")
-    ap.add_argument("--out", type=Path)
-    args = ap.parse_args(argv)
-    paths = newest(args.dirs, args.last)
-    if not paths:
-        raise SystemExit(f"no checkpoints (checkpoints/ckpt-*.pt) under {', '.join(map(str, args.dirs))}")
-    measured = measure_all(paths, args.cache, measure_checkpoint)
-    command = " ".join(["python -m actors.evaluation.critic_probe", *(argv if argv is not None else sys.argv[1:])])
-    lines = ["# The critic before each crash, per checkpoint", "", f"Built by `{command}`.", "", *report(measured)]
-    print("\n".join(lines))
-    if args.out:
-        args.out.write_text("\n".join(lines) + "\n")
+    checkpoint_tool(
+        argv,
+        __doc__,
+        "actors.evaluation.critic_probe",
+        measure_checkpoint,
+        report,
+        "The critic before each crash, per checkpoint",
+    )
 
 
 if __name__ == "__main__":

@@ -133,9 +133,13 @@ def report(measured: dict[str, dict], fail_below: int = 11) -> list[str]:
     return lines
 
 
-def main(argv: list[str] | None = None) -> None:
-    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    ap.add_argument("dirs", nargs="+", type=Path, help="run folders; their checkpoints/ckpt-*.pt are driven")
+def checkpoint_tool(
+    argv: list[str] | None, doc: str, module: str, measure: Callable[[Path], dict], table: Callable, title: str
+) -> None:
+    """The command line of a per-checkpoint tool: run folders, `--last`, a resumable `--cache`,
+    then `title` and `table(measured)` printed and written to `--out`."""
+    ap = argparse.ArgumentParser(description=doc.split("\n\n")[0])
+    ap.add_argument("dirs", nargs="+", type=Path, help="run folders; their checkpoints/ckpt-*.pt are measured")
     ap.add_argument("--cache", type=Path, help="JSON of the checkpoints measured so far (read and extended)")
     ap.add_argument("--last", type=int, default=0, help="only each run's this many newest checkpoints (0: all)")
     ap.add_argument("--out", type=Path)
@@ -143,13 +147,23 @@ def main(argv: list[str] | None = None) -> None:
     paths = newest(args.dirs, args.last)
     if not paths:
         raise SystemExit(f"no checkpoints (checkpoints/ckpt-*.pt) under {', '.join(map(str, args.dirs))}")
-    measured = measure_all(paths, args.cache)
-    command = " ".join(["python -m actors.evaluation.road_gap", *(argv if argv is not None else sys.argv[1:])])
-    lines = ["# Train roads against test roads, per checkpoint", "", f"Built by `{command}`.", ""]
-    lines += report(measured)
+    measured = measure_all(paths, args.cache, measure)
+    command = " ".join([f"python -m {module}", *(argv if argv is not None else sys.argv[1:])])
+    lines = [f"# {title}", "", f"Built by `{command}`.", "", *table(measured)]
     print("\n".join(lines))
     if args.out:
         args.out.write_text("\n".join(lines) + "\n")
+
+
+def main(argv: list[str] | None = None) -> None:
+    checkpoint_tool(
+        argv,
+        __doc__,
+        "actors.evaluation.road_gap",
+        measure_checkpoint,
+        report,
+        "Train roads against test roads, per checkpoint",
+    )
 
 
 if __name__ == "__main__":
