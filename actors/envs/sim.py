@@ -21,6 +21,12 @@ from actors.envs.road_map import RoadMap, build_road_map
 from actors.envs.tracks import Track, get_track, track_names
 from common.config.env import DamageConfig, EnvConfig
 
+
+def target_speed(v_max: float, a_speed):
+    """The target speed of a speed action in [-1, 1]: -1..1 maps to 0.5..1.0 v_max (both simulators)."""
+    return v_max * (0.75 + 0.25 * a_speed)
+
+
 LOOKAHEAD_M = 40.0  # horizon of `curvature_ahead`, for speed planning by controllers
 _WINDOW = np.arange(-8, 48)  # nearest-sample search, in samples of 0.25 m: -2 m .. +12 m (2 m per step at most)
 PATH_LEN = 4000  # positions kept for the top-down view
@@ -139,7 +145,7 @@ class LaneDriveSim:
         vc = self.cfg.vehicle
         dt, rate = vc.dt, vc.steer_rate * vc.dt
         self.delta += np.minimum(np.maximum(a[:, 0] * vc.max_steer - self.delta, -rate), rate)
-        self.v += (vc.v_max * (0.75 + 0.25 * a[:, 1]) - self.v) * (1.0 - math.exp(-dt / vc.speed_lag))
+        self.v += (target_speed(vc.v_max, a[:, 1]) - self.v) * (1.0 - math.exp(-dt / vc.speed_lag))
         k_grip = vc.max_lateral_accel / (self.v * self.v)  # speed never falls below v_max / 2
         kappa = np.minimum(np.maximum(np.tan(self.delta) / vc.wheelbase, -k_grip), k_grip)
         dtheta = self.v * kappa * dt

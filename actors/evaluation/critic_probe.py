@@ -11,9 +11,9 @@ the policy's action and with the target speed swept over its range, the steering
   Negative before a crash: the critic already wanted to slow down and the actor did not follow.
 - `dq_dspeed`: the sign of dQ1/d(target speed) at pi(s), the direction the actor's next step moves.
 
-"pre-crash" is the window of steps `--before` (default 30 to 5) before a termination; "lapping" is
-every step of a completed lap at least `--horizon` steps before its end (the return there is
-complete to gamma^horizon). If the creep is a critic that does not (yet, or any more) charge the
+"pre-crash" is the window of steps 30 to 5 before a termination (`summarise`'s `before`);
+"lapping" is every step of a completed lap at least 300 steps before its end (`horizon`: the
+return there is complete to gamma^300). If the creep is a critic that does not (yet, or any more) charge the
 fast bends, pre-crash steps show a large positive gap and a preferred speed at or above the
 policy's; if it is the actor lagging a critic that does, the preferred speed is below it.
 
@@ -28,6 +28,7 @@ from pathlib import Path
 import numpy as np
 import torch
 
+from actors.envs.sim import target_speed
 from actors.evaluation.evaluate import evaluate
 from actors.evaluation.main import eval_env_kwargs
 from actors.evaluation.policies import known_config
@@ -107,7 +108,9 @@ def summarise(
             keep, name = np.arange(max(0, n - before[0]), max(0, n - before[1])), "pre_crash"
         else:
             continue
-        speed_gap = (probe["best_speed_action"] - drive["trace"]["action"][:, 1]) * 0.25 * v_max  # m/s per unit
+        speed_gap = target_speed(v_max, probe["best_speed_action"]) - target_speed(
+            v_max, drive["trace"]["action"][:, 1]
+        )
         parts[name].append(
             np.stack([probe["q"][keep] - g[keep], speed_gap[keep], np.sign(probe["dq_dspeed"][keep])], 1)
         )

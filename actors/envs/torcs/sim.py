@@ -23,7 +23,7 @@ import numpy as np
 
 from actors.envs.camera import HEIGHT, WIDTH, Camera
 from actors.envs.road_map import RoadMap
-from actors.envs.sim import LOOKAHEAD_M, _brightness_table
+from actors.envs.sim import LOOKAHEAD_M, _brightness_table, target_speed
 from actors.envs.torcs.geometry import TorcsRoad, centreline, read_road
 from actors.envs.torcs.protocol import CarState, TorcsInstall, TorcsProcess
 from actors.envs.torcs.race import RaceSpec
@@ -136,7 +136,7 @@ class TorcsSim:
             raise ValueError(f"TorcsDrive actions must be finite, got {actions.tolist()}")
         live = np.ones(self.n, bool) if active is None else np.asarray(active, bool).reshape(self.n)
         a = np.where(live[:, None], np.clip(actions, -1.0, 1.0), self.last_action)
-        target = self.v_max * (0.75 + 0.25 * a[:, 1])  # -1..1 -> 0.5..1.0 v_max, as LaneDrive
+        target = target_speed(self.v_max, a[:, 1])
         cars = np.flatnonzero(live)
         for i in cars:
             self.procs[i].send(float(a[i, 0]), float(target[i]))
