@@ -9,7 +9,7 @@ import torch
 from tensordict import TensorDict, TensorDictBase
 from torch import Tensor, nn
 
-from common.config.agent import ScaleConfig
+from common.config.agent import ScaleConfig, shaped_reward
 from common.networks import phi
 from learner.replay import ImportanceResamplingReplay, expand
 
@@ -19,10 +19,9 @@ STEPS = "steps_to_next_obs"  # torchrl's TD(0) estimator raises its gamma to thi
 def ddpg_reward(nxt: TensorDictBase, scale: ScaleConfig, discount: float, steps: Tensor | None = None) -> Tensor:
     """The env's reward, less `scale.crash_penalty` where the car left the lane, scaled; with
     n-step windows (`steps` = m) the penalty is discounted to the window's last step."""
-    penalty = scale.crash_penalty * nxt["terminated"].to(nxt["reward"].dtype)
-    if steps is not None:
-        penalty = penalty * discount ** (steps.to(penalty.dtype) - 1)
-    return (nxt["reward"] - penalty) * scale.reward_scale
+    terminated = nxt["terminated"].to(nxt["reward"].dtype)
+    weight = 1.0 if steps is None else discount ** (steps.to(terminated.dtype) - 1)
+    return shaped_reward(nxt["reward"], terminated, scale, weight)
 
 
 def with_nstep_next(batch: TensorDictBase, stored: TensorDictBase, replay: ImportanceResamplingReplay) -> None:

@@ -138,6 +138,21 @@ def test_step_sizes_come_from_the_scale_unless_the_agent_sets_them():
     assert step_sizes(mine.agent, mine.scale)["lr_critic"] == small.scale.lr_critic
 
 
+def test_the_shaped_reward_charges_the_crash_once_and_scales_numpy_and_torch_alike():
+    import numpy as np
+    import torch
+
+    from common.config.agent import shaped_reward
+
+    scale = compose_run(["scale=small", "scale.crash_penalty=10", "scale.reward_scale=0.1"]).scale
+    reward, terminated = [1.0, 2.0, 3.0], [0.0, 0.0, 1.0]
+    expected = [0.1, 0.2, -0.7]  # (3 - 10) * 0.1 on the step that left the lane only
+    assert np.allclose(shaped_reward(np.array(reward), np.array(terminated), scale), expected)
+    assert torch.allclose(shaped_reward(torch.tensor(reward), torch.tensor(terminated), scale), torch.tensor(expected))
+    halved = shaped_reward(np.array(reward), np.array(terminated), scale, penalty_weight=0.5)
+    assert np.allclose(halved, [0.1, 0.2, -0.2])  # an n-step window's penalty, discounted
+
+
 def test_actor_squash_comes_from_the_scale_unless_the_agent_sets_it():
     from common.config.agent import actor_squash
     from common.networks import make_policy

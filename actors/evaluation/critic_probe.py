@@ -34,7 +34,7 @@ from actors.evaluation.main import eval_env_kwargs
 from actors.evaluation.policies import known_config
 from actors.evaluation.road_gap import checkpoint_tool, roads
 from common import checkpoint
-from common.config.agent import AgentConfig, ScaleConfig, step_sizes
+from common.config.agent import AgentConfig, ScaleConfig, shaped_reward, step_sizes
 from common.config.run import RunConfig
 from common.networks import make_networks, phi
 
@@ -147,9 +147,9 @@ def measure_checkpoint(path: Path, cfg: RunConfig | None = None, splits=("test",
         action = torch.from_numpy(drive["trace"]["action"])
         probes.append(probe_steps(critic, x, action))
         drive["terminated"] = drive["metrics"]["lap_completed"] < 1 and n < cfg.env.max_steps
-        crash = np.zeros(n)
-        crash[-1] = scale.crash_penalty * drive["terminated"]
-        drive["ddpg_reward"] = (drive["trace"]["reward"] - crash) * scale.reward_scale
+        terminated = np.zeros(n)
+        terminated[-1] = drive["terminated"]
+        drive["ddpg_reward"] = shaped_reward(drive["trace"]["reward"], terminated, scale)
     laps = sum(int(d["metrics"]["lap_completed"] >= 1) for d in drives)
     discount = step_sizes(agent, scale)["discount"]
     return {

@@ -165,6 +165,13 @@ def actor_squash(agent: AgentConfig, scale: ScaleConfig) -> str:
     return value
 
 
+def shaped_reward(reward, terminated, scale: ScaleConfig, penalty_weight=1.0):
+    """DDPG's reward from the env's: less `scale.crash_penalty` (times `penalty_weight`) where
+    `terminated`, times `scale.reward_scale`; numpy arrays or tensors alike, so the learner and the
+    evaluation tools (which may not import the learner) form it once."""
+    return (reward - scale.crash_penalty * penalty_weight * terminated) * scale.reward_scale
+
+
 TERMINALS = ("absorbing", "zero")  # learner.gvf.td_target
 
 
