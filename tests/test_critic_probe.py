@@ -18,10 +18,10 @@ def test_returns_are_discounted_to_the_drives_end():
 
 
 class PeakedCritic(torch.nn.Module):
-    """Q(x, a) = -(a_speed - x0)^2: the best target speed is x0, whatever the steering."""
+    """Q(x, a) = -(a_speed - x0)^2 + a_steer: the best target speed is x0; Q rises steering left."""
 
     def forward(self, x, a):
-        return -((a[:, 1:] - x[:, :1]) ** 2)
+        return -((a[:, 1:] - x[:, :1]) ** 2) + a[:, :1]
 
 
 def test_the_sweep_finds_the_critics_best_speed_and_the_gradients_sign():
@@ -29,22 +29,36 @@ def test_the_sweep_finds_the_critics_best_speed_and_the_gradients_sign():
     action = torch.tensor([[0.2, 0.0], [0.1, 0.8], [-0.4, 0.9]])
     probe = probe_steps(PeakedCritic(), x, action)
     assert np.allclose(probe["best_speed_action"], [-0.5, 0.3, 0.9], atol=1e-6)
-    assert np.allclose(probe["q"], [-0.25, -0.25, 0.0], atol=1e-6)
+    assert np.allclose(probe["q"], [-0.05, -0.15, -0.4], atol=1e-6)
     assert list(np.sign(probe["dq_dspeed"])) == [-1.0, -1.0, 0.0]  # too fast, too fast, at the peak
+    assert np.allclose(probe["dq_dsteer"], 1.0)
 
 
 def test_windows_pool_pre_crash_and_lapping_steps():
     n = 40
     crash = {"metrics": {"lap_completed": 0.0}, "terminated": True, "ddpg_reward": np.ones(n)}
     lap = {"metrics": {"lap_completed": 1.0}, "terminated": False, "ddpg_reward": np.ones(n)}
-    for drive in (crash, lap):
-        drive["trace"] = {"action": np.zeros((n, 2), np.float32)}
-    probe = {"q": np.full(n, 10.0), "best_speed_action": np.full(n, -1.0), "dq_dspeed": np.full(n, 2.0)}
+    # the lap: 10 steps 0.5 left of the centre (Q rises steering further left: away), then centred
+    alpha = np.where(np.arange(n) < 10, 0.5, 0.0).astype(np.float32)
+    crash["trace"] = {"action": np.zeros((n, 2), np.float32), "alpha": np.full(n, -0.6, np.float32)}
+    lap["trace"] = {"action": np.zeros((n, 2), np.float32), "alpha": alpha}
+    probe = {
+        "q": np.full(n, 10.0),
+        "best_speed_action": np.full(n, -1.0),
+        "dq_dspeed": np.full(n, 2.0),
+        "dq_dsteer": np.full(n, 0.5),
+    }
     out = summarise([crash, lap], [probe, probe], discount=0.0, v_max=20.0, before=(30, 5), horizon=10)
     assert out["pre_crash"]["steps"] == 25 and out["lapping"]["steps"] == 30
     for part in out.values():  # discount 0: G = 1 at every step; -1 of the action is 5 m/s below 0
         assert part["q_minus_return"] == pytest.approx(9.0) and part["preferred_speed"] == pytest.approx(-5.0)
         assert part["slower_preferred"] == 1.0 and part["dq_dspeed_positive"] == 1.0
+    # right of the centre before the crash, Q rising to the left: every step points to the centre
+    assert out["pre_crash"]["off_centre_steps"] == 25 and out["pre_crash"]["to_centre"] == 1.0
+    assert out["lapping"]["off_centre_steps"] == 10 and out["lapping"]["to_centre"] == 0.0
+    assert out["lapping"]["mean_alpha"] == pytest.approx(5 / 30) and out["lapping"]["mean_abs_alpha"] == pytest.approx(
+        5 / 30
+    )
 
 
 def test_the_recorded_phi_and_actions_are_the_drives_own():

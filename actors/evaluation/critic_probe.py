@@ -10,6 +10,9 @@ the policy's action and with the target speed swept over its range, the steering
 - `preferred_speed`: the target speed (m/s) where Q1 peaks along the sweep, less the policy's.
   Negative before a crash: the critic already wanted to slow down and the actor did not follow.
 - `dq_dspeed`: the sign of dQ1/d(target speed) at pi(s), the direction the actor's next step moves.
+- `dq_dsteer`: the same for the steering. At steps off the centre (|alpha| >= `OFF_CENTRE`)
+  `to_centre` is the share where it points back to the centre (steering left, positive, moves
+  alpha up): a critic that charges the offset says so there; about half is one that does not.
 
 "pre-crash" is the window of steps 30 to 5 before a termination (`summarise`'s `before`);
 "lapping" is every step of a completed lap at least 300 steps before its end (`horizon`: the
@@ -39,6 +42,7 @@ from common.config.run import RunConfig
 from common.networks import make_networks, phi
 
 SPEED_GRID = torch.linspace(-1.0, 1.0, 21)  # target-speed actions swept at every step
+OFF_CENTRE = 0.3  # |alpha| from which a lapping step counts as off the centre (the target is mean 0.1)
 Q_PREFIX = "qvalue_network_params.module."  # torchrl's loss module keeps the critics' weights here
 
 
@@ -78,7 +82,7 @@ def recording_policy(policy: torch.nn.Module, record: list):
 
 
 def probe_steps(critic: torch.nn.Module, x: torch.Tensor, action: torch.Tensor) -> dict[str, np.ndarray]:
-    """Per step: Q1 at the action, the sweep's best target-speed action, and dQ1/d(target speed)."""
+    """Per step: Q1 at the action, the sweep's best target-speed action, and dQ1/d(steering, target speed)."""
     a = action.clone().requires_grad_(True)
     q = critic(x, a)
     (grad,) = torch.autograd.grad(q.sum(), a)
@@ -91,6 +95,7 @@ def probe_steps(critic: torch.nn.Module, x: torch.Tensor, action: torch.Tensor) 
         "q": q.detach().reshape(-1).numpy(),
         "best_speed_action": SPEED_GRID[q_sweep.argmax(1)].numpy(),
         "dq_dspeed": grad[:, 1].numpy(),
+        "dq_dsteer": grad[:, 0].numpy(),
     }
 
 
@@ -111,12 +116,17 @@ def summarise(
         speed_gap = target_speed(v_max, probe["best_speed_action"]) - target_speed(
             v_max, drive["trace"]["action"][:, 1]
         )
+        alpha = drive["trace"]["alpha"][keep]
+        centring = -np.sign(alpha) * np.sign(probe["dq_dsteer"][keep])  # +1: Q rises steering to the centre
         parts[name].append(
-            np.stack([probe["q"][keep] - g[keep], speed_gap[keep], np.sign(probe["dq_dspeed"][keep])], 1)
+            np.stack(
+                [probe["q"][keep] - g[keep], speed_gap[keep], np.sign(probe["dq_dspeed"][keep]), alpha, centring], 1
+            )
         )
     out = {}
     for name, chunks in parts.items():
-        rows = np.concatenate(chunks) if chunks else np.zeros((0, 3))
+        rows = np.concatenate(chunks) if chunks else np.zeros((0, 5))
+        off = rows[np.abs(rows[:, 3]) >= OFF_CENTRE]
         out[name] = {
             "drives": len(chunks),
             "steps": len(rows),
@@ -124,6 +134,10 @@ def summarise(
             "preferred_speed": float(rows[:, 1].mean()) if len(rows) else None,
             "slower_preferred": float((rows[:, 1] < 0).mean()) if len(rows) else None,
             "dq_dspeed_positive": float((rows[:, 2] > 0).mean()) if len(rows) else None,
+            "mean_alpha": float(rows[:, 3].mean()) if len(rows) else None,
+            "mean_abs_alpha": float(np.abs(rows[:, 3]).mean()) if len(rows) else None,
+            "off_centre_steps": len(off),
+            "to_centre": float((off[:, 4] > 0).mean()) if len(off) else None,
         }
     return out
 
@@ -163,7 +177,7 @@ def measure_checkpoint(path: Path, cfg: RunConfig | None = None, splits=("test",
 
 def report(measured: dict[str, dict]) -> list[str]:
     def cell(m: dict, key: str, fmt: str) -> str:
-        return "-" if m[key] is None else format(m[key], fmt)
+        return "-" if m.get(key) is None else format(m[key], fmt)  # cached before a column existed: "-"
 
     lines = [
         "| checkpoint | updates | laps | pre-crash steps | Q - G pre-crash | Q - G lapping | preferred - driven "
@@ -177,6 +191,21 @@ def report(measured: dict[str, dict]) -> list[str]:
             f"| {cell(lap, 'q_minus_return', '.2f')} | {cell(c, 'preferred_speed', '+.1f')} "
             f"| {cell(lap, 'preferred_speed', '+.1f')} | {cell(c, 'slower_preferred', '.2f')} "
             f"| {cell(c, 'dq_dspeed_positive', '.2f')} | {cell(lap, 'dq_dspeed_positive', '.2f')} |"
+        )
+    lines += [
+        "",
+        f"Steering on the laps (|alpha| >= {OFF_CENTRE} counts as off the centre; alpha > 0 is left of it):",
+        "",
+        "| checkpoint | mean alpha lapping | mean abs(alpha) lapping | off-centre steps | dQ/dsteer to the centre there "
+        "| pre-crash: off-centre steps | to the centre |",
+        "|" + " --- |" * 7,
+    ]
+    for path, m in measured.items():
+        c, lap = m["pre_crash"], m["lapping"]
+        lines.append(
+            f"| {path} | {cell(lap, 'mean_alpha', '+.3f')} | {cell(lap, 'mean_abs_alpha', '.3f')} "
+            f"| {cell(lap, 'off_centre_steps', 'd')} | {cell(lap, 'to_centre', '.2f')} "
+            f"| {cell(c, 'off_centre_steps', 'd')} | {cell(c, 'to_centre', '.2f')} |"
         )
     return lines
 
