@@ -68,9 +68,16 @@ def test_an_actor_waiting_for_ever_for_a_router_stops_on_sigterm(tmp_path, endpo
         [f"transport.connect=[{endpoint}]", "transport.connect_timeout_s=-1", f"hydra.run.dir={tmp_path}"],
         tmp_path / "actor.log",
     )
+    log = tmp_path / "actor.log"
     try:
-        time.sleep(5.0)
+        # its first failed attempt is logged after the signal handlers are in place (a slow start
+        # signalled before that dies of SIGTERM's default: -15)
+        deadline = time.monotonic() + 120
+        while "waiting for one" not in (log.read_text() if log.exists() else "") and proc.poll() is None:
+            assert time.monotonic() < deadline, log.read_text()[-2000:]
+            time.sleep(0.5)
+        time.sleep(2.0)
         assert proc.poll() is None  # still waiting: nobody listens there
     finally:
         code = stop(proc, timeout=10)
-    assert code == 0, (tmp_path / "actor.log").read_text()[-2000:]
+    assert code == 0, log.read_text()[-2000:]

@@ -137,6 +137,7 @@ class ZenohTransport:
         forever = cfg.connect_timeout_s < 0
         # waiting for ever happens in 1 s attempts: zenoh.open itself cannot be interrupted by a signal
         attempt = dataclasses.replace(cfg, connect_timeout_s=1.0) if forever else cfg
+        waiting = False
         while True:
             try:
                 self.session = zenoh.open(zenoh_config(attempt))
@@ -147,6 +148,9 @@ class ZenohTransport:
                     raise ConnectionError(
                         f"cannot open a zenoh session ({cfg.mode}, connect={cfg.connect}): {exc}"
                     ) from exc
+                if not waiting:  # once: a user sees why the role is idle
+                    log.info("no router at %s yet: waiting for one (connect_timeout_s < 0)", cfg.connect)
+                    waiting = True
         self._owned: list = []
         self._closed = False
 
