@@ -45,7 +45,7 @@ from learner.ddpg import DDPG
 from learner.ddpg_batch import STEPS, ddpg_reward, observation_batch, phi_batch, with_nstep_next
 from learner.gvf import ReturnBound, cumulants, expand_gammas, gvf_loss, td_target
 from learner.insert_rho import RHO_SLICE, InsertRho
-from learner.metrics import actor_diagnostics, ddpg_metrics, prediction_error
+from learner.metrics import actor_diagnostics, ddpg_metrics, prediction_error, steering_diagnostics
 from learner.mirror import mirror
 from learner.nstep import nstep_columns
 from learner.policy_average import PolicyAverage
@@ -209,7 +209,10 @@ class LearningCore:
         else:
             ddpg_batch = observation_batch(uniform, reward, lowdim=self.nets.representation == "lowdim")
         loss_ddpg, out = self.ddpg.loss(ddpg_batch)
-        return self._apply(loss_ddpg + sum(losses.values()), losses, out, ddpg_batch)
+        total = loss_ddpg + sum(losses.values())
+        if (self.updates + 1) % self.agent.metrics_every == 0:  # reported, not learned from; before the step
+            losses.update(steering_diagnostics(*self.ddpg.action_gradient(ddpg_batch), uniform["alpha"]))
+        return self._apply(total, losses, out, ddpg_batch)
 
     def update_representation(self) -> dict[str, float]:
         """Algorithm 2's update (offline): lines 11-17 alone, the GVFs and g without DDPG."""

@@ -126,6 +126,23 @@ class DDPG:
                 values.append(qnet(acted.select(*qnet.in_keys).clone(False))["state_action_value"])
         return -torch.minimum(*values).mean()
 
+    @torch.enable_grad()
+    def action_gradient(self, batch: TensorDictBase) -> tuple[Tensor, Tensor]:
+        """pi(s) on `batch` and dQ/da there: the direction the actor's next step moves each action
+        (with td3 the first twin's, the one TD3's actor climbs). Nothing is stepped or accumulated."""
+        with torch.no_grad():
+            action = self.actor_module(batch.select(*self.actor_module.in_keys).clone(False))["action"]
+        if self.td3:
+            qnet, params = self.loss_module.qvalue_network, self.loss_module.qvalue_network_params.unbind(0)[0]
+        else:
+            qnet, params = self.loss_module.value_network, self.loss_module.value_network_params
+        td = batch.select(*(k for k in qnet.in_keys if k != "action")).clone(False)
+        td["action"] = action.detach().requires_grad_(True)
+        with params.detach().to_module(qnet):
+            q = qnet(td)["state_action_value"]
+        (grad,) = torch.autograd.grad(q.sum(), td["action"])
+        return action, grad
+
     def actor_steps_now(self) -> bool:
         """Whether this update steps the actor (every update; with td3 every `actor_delay`)."""
         self.steps += 1

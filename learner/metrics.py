@@ -17,6 +17,7 @@ import torch
 from tensordict import TensorDictBase
 from torch import Tensor
 
+from common.config.env import OFF_CENTRE
 from learner.gvf import cumulants, expand_gammas
 
 
@@ -111,3 +112,28 @@ def actor_diagnostics(actor: torch.nn.Module, acting: Callable, batch: TensorDic
         "diag/saturated_steering": saturated[0],
         "diag/saturated_speed": saturated[1],
     }
+
+
+@torch.no_grad()
+def steering_diagnostics(action: Tensor, dq_da: Tensor, alpha: Tensor) -> dict[str, Tensor]:
+    """Does the actor follow its critic back to the lane's centre on the training states?
+
+    `action` pi(s) (B, 2), `dq_da` the critic's gradient there (`learner.ddpg.DDPG.action_gradient`),
+    `alpha` (B, 1) of the same (mirrored) states. Over the whole batch: the size of dQ/d(steering)
+    and dQ/d(target speed). At the off-centre states (|alpha| >= OFF_CENTRE), signed so that
+    positive is "towards the centre" (steering against alpha's sign): the share where the critic's
+    gradient points there, its mean, and the actor's mean steering. A critic that points to the centre
+    with an actor whose steering there does not move is an actor not following it."""
+    out = {
+        "diag/dq_dsteer_abs": dq_da[:, 0].abs().mean(),
+        "diag/dq_dspeed_abs": dq_da[:, 1].abs().mean(),
+    }
+    alpha = alpha.reshape(-1)
+    off = alpha.abs() >= OFF_CENTRE
+    out["diag/off_centre_share"] = off.float().mean()
+    if bool(off.any()):
+        towards = -torch.sign(alpha[off])
+        out["diag/critic_to_centre"] = (towards * dq_da[off, 0] > 0).float().mean()
+        out["diag/dq_dsteer_to_centre"] = (towards * dq_da[off, 0]).mean()
+        out["diag/steer_to_centre"] = (towards * action[off, 0]).mean()
+    return out

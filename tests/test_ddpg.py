@@ -9,6 +9,7 @@ from tensordict import TensorDict
 
 from common.networks import BranchedActor, BranchedCritic
 from learner.ddpg import DDPG
+from learner.metrics import steering_diagnostics
 
 
 def make(obs_dim: int, n_actions: int, **kwargs) -> DDPG:
@@ -208,6 +209,50 @@ def test_the_pessimistic_actor_follows_the_smaller_of_two_disagreeing_critics(mi
     assert ddpg.loss_module.qvalue_network_params["module", "w"].flatten().tolist() == [1.0, -1.0]  # critics held
 
 
+class AffineQ(torch.nn.Module):
+    """Q(phi, a) = w . a + phi0: dQ/da is w wherever the critic is read."""
+
+    def __init__(self):
+        super().__init__()
+        self.w = torch.nn.Parameter(torch.tensor([0.5, -2.0]))
+
+    def forward(self, phi, action):
+        return (action * self.w).sum(-1, keepdim=True) + phi[..., :1]
+
+
+@pytest.mark.parametrize("td3", [False, True])
+def test_the_action_gradient_is_the_critics_at_the_actors_action_and_changes_nothing(td3):
+    torch.manual_seed(0)
+    actor = BranchedActor(3, [16], n_actions=2, squash="tanh")
+    ddpg = DDPG(actor, AffineQ(), actor_in_keys=["phi"], critic_in_keys=["phi", "action"], td3=td3)
+    if td3:  # the twins: TD3's actor climbs the first, so the second's gradient must not show
+        ddpg.loss_module.qvalue_network_params["module", "w"].data.copy_(torch.tensor([[0.5, -2.0], [3.0, 3.0]]))
+    batch = random_batch(8)
+    stored = batch["action"].clone()
+    action, grad = ddpg.action_gradient(batch)
+    with torch.no_grad():
+        assert torch.equal(action, actor(batch["phi"]))
+    assert torch.allclose(grad, torch.tensor([0.5, -2.0]).expand(8, 2))
+    assert all(p.grad is None for p in actor.parameters())
+    assert torch.equal(batch["action"], stored) and not batch["action"].requires_grad  # the batch untouched
+
+
 def test_actor_min_q_without_twin_critics_is_refused():
     with pytest.raises(ValueError, match="actor_min_q"):
         make(3, 2, actor_min_q=True)
+
+
+def test_steering_diagnostics_sign_towards_the_centre_on_hand_made_states():
+    """alpha > 0 is left of the centre, so steering right (negative) goes back: at alpha = +0.5 a
+    gradient of -1 points to the centre, at alpha = -0.4 one of +2 does, at -0.6 one of -1 does not."""
+    alpha = torch.tensor([[0.5], [-0.4], [-0.6], [0.1]])
+    action = torch.tensor([[-0.2, 0.0], [0.3, 0.0], [-0.1, 0.0], [0.9, 0.0]])
+    dq_da = torch.tensor([[-1.0, 4.0], [2.0, -4.0], [-1.0, 0.0], [5.0, 0.0]])
+    out = {k: float(v) for k, v in steering_diagnostics(action, dq_da, alpha).items()}
+    assert out["diag/off_centre_share"] == pytest.approx(0.75)
+    assert out["diag/critic_to_centre"] == pytest.approx(2 / 3)
+    assert out["diag/dq_dsteer_to_centre"] == pytest.approx((1.0 + 2.0 - 1.0) / 3)
+    assert out["diag/steer_to_centre"] == pytest.approx((0.2 + 0.3 - 0.1) / 3)
+    assert out["diag/dq_dsteer_abs"] == pytest.approx(9 / 4) and out["diag/dq_dspeed_abs"] == pytest.approx(2.0)
+    centred = steering_diagnostics(action, dq_da, torch.zeros(4, 1))
+    assert "diag/critic_to_centre" not in centred and float(centred["diag/off_centre_share"]) == 0.0

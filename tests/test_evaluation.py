@@ -97,6 +97,7 @@ def test_short_training_then_eval_and_comparison_of_its_checkpoint_write_tables_
             "actors.count=1",
             "max_seconds=60",
             "learner.max_updates=40",
+            "agent.metrics_every=10",
             "eval.every_updates=20",
             "eval.directions=[ccw]",
         ]
@@ -128,6 +129,9 @@ def test_short_training_then_eval_and_comparison_of_its_checkpoint_write_tables_
     assert [e["updates"] for e in record["evaluations"]] == [x["updates"] for x in lines]
     assert record["last"]["clean"]["mean"]["lap_completed"] >= 0 and len(record["last"]["damaged"]["drives"]) == 12
     assert record["selected"]["updates"] == best["updates"]
+    assert record["learner"]["updates"] and len(record["learner"]["diag/dq_dsteer_abs"]) == len(
+        record["learner"]["updates"]
+    )
     (tmp_path / "runs" / "gvf_ddpg").mkdir(parents=True)
     (tmp_path / "runs" / "gvf_ddpg" / "seed0.json").write_text(json.dumps(record))
     table = compare(tmp_path / "runs", tmp_path / "results").read_text()

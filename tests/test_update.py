@@ -37,7 +37,7 @@ def test_every_variant_trains_all_its_networks(variant, data):
     target_before = core.ddpg.loss_module.target_value_network_params.clone()
     assert core.update() == {}
     metrics = core.update()
-    expected = {"losses/actor", "losses/critic", "train/q_mean", "train/q_target_mean"}
+    expected = {"losses/actor", "losses/critic", "train/q_mean", "train/q_target_mean", "diag/dq_dsteer_abs"}
     if core.predictive:
         expected |= {
             "losses/td",
@@ -205,6 +205,20 @@ def test_checkpoint_resumes_to_identical_updates(data):
         resumed.update()
     for name, module in core.nets.modules().items():
         other = resumed.nets.modules()[name].state_dict()
+        for key, value in module.state_dict().items():
+            assert torch.equal(value, other[key]), (name, key)
+
+
+def test_the_steering_diagnostics_are_reported_not_learned_from(data):
+    """An update that reports (metrics_every=1) moves every weight exactly as one that does not."""
+    cores = [make_core("gvf_ddpg", metrics_every=every) for every in (1, 1000)]
+    for core in cores:
+        core.add(data)
+    reports = [[core.update() for _ in range(3)] for core in cores]
+    assert all("diag/critic_to_centre" in r or "diag/off_centre_share" in r for r in reports[0])
+    assert reports[1] == [{}, {}, {}]
+    for name, module in cores[0].nets.modules().items():
+        other = cores[1].nets.modules()[name].state_dict()
         for key, value in module.state_dict().items():
             assert torch.equal(value, other[key]), (name, key)
 

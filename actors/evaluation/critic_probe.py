@@ -38,11 +38,11 @@ from actors.evaluation.policies import known_config
 from actors.evaluation.road_gap import checkpoint_tool, roads
 from common import checkpoint
 from common.config.agent import AgentConfig, ScaleConfig, shaped_reward, step_sizes
+from common.config.env import OFF_CENTRE
 from common.config.run import RunConfig
 from common.networks import make_networks, phi
 
 SPEED_GRID = torch.linspace(-1.0, 1.0, 21)  # target-speed actions swept at every step
-OFF_CENTRE = 0.3  # |alpha| from which a lapping step counts as off the centre (the target is mean 0.1)
 Q_PREFIX = "qvalue_network_params.module."  # torchrl's loss module keeps the critics' weights here
 
 

@@ -10,7 +10,8 @@ interrupted job starts again; its partial folder is moved aside as `<job>.interr
 summary holds the run's periodic evaluations (minute, updates, test and validation metrics,
 per road: lap, episode length, where the drive ended) and the final policies (the last
 checkpoint and the validation-selected best-policy.pt) driven on the test roads, clean and with
-damaged markings, with each clean drive's lane centeredness along the lap (downsampled).
+damaged markings, with each clean drive's lane centeredness along the lap (downsampled), and the
+learner's diagnostics binned every 500 updates (`learner_curves`).
 """
 
 from __future__ import annotations
@@ -27,6 +28,7 @@ from pathlib import Path
 import numpy as np
 
 from actors.evaluation.evaluate import evaluate, summary
+from actors.evaluation.learner_curves import learner_curves
 from actors.evaluation.main import DEFAULT_DAMAGE
 from actors.evaluation.periodic import BEST
 from actors.evaluation.policies import checkpoint_policy
@@ -98,6 +100,7 @@ def summarize(run_dir: Path, start: float, job: dict) -> dict:
         "evaluations": evaluations,
         "last": final_drives(run_dir / "checkpoints"),
         "selected": final_drives(run_dir / "checkpoints" / BEST, traces=False),
+        "learner": learner_curves(run_dir / "tb"),
     }
 
 

@@ -8,6 +8,9 @@ from __future__ import annotations
 from dataclasses import dataclass, field, fields
 
 SIMULATORS = ("LaneDrive-v0", "TorcsDrive-v0")  # the gymnasium ids an actor and the evaluator can drive
+# |alpha| from which a step counts as off the centre (the target is a mean of 0.1); alpha > 0
+# is left of the centre and positive steering (left) moves alpha up
+OFF_CENTRE = 0.3
 
 
 @dataclass
