@@ -20,6 +20,7 @@ def test_each_set_of_roads_counts_its_laps_speed_and_crashes_per_step():
     clean = drive_splits(kinematic, by_split=by_split)
     assert [clean[s]["laps"] for s in by_split] == [2, 2, 2] and all(clean[s]["p"] == 0.0 for s in by_split)
     assert all(8.0 < clean[s]["speed"] < 21.0 for s in by_split)
+    assert all(0.0 < clean[s]["offcentre"] < 0.1 for s in by_split)  # the controller drives the centre
     crashing = drive_splits(half_crashing, by_split=by_split)
     for s in by_split:  # the full-lock car leaves the road within seconds: one failure in its few steps
         m = crashing[s]
@@ -28,6 +29,9 @@ def test_each_set_of_roads_counts_its_laps_speed_and_crashes_per_step():
     table = "\n".join(report({"ckpt-a": {"updates": 5, **crashing}, "ckpt-b": {"updates": 9, **clean}}))
     assert "| ckpt-a | 5 | 1/2 |" in table and "| ckpt-b | 9 | 2/2 |" in table
     assert "Pooled over the 2 checkpoints failing the test roads (< 11 laps)" in table  # 1 and 2 laps of 2
+    assert f"| {clean['test']['offcentre']:.3f} | {clean['train']['offcentre']:.3f} |" in table
+    older = {k: {f: v for f, v in m.items() if f != "offcentre"} for k, m in clean.items()}  # a cache before it
+    assert report({"ckpt-c": {"updates": 1, **older}})[2].endswith("| - | - |")
 
 
 def test_a_second_pass_drives_only_the_checkpoints_not_yet_in_the_cache(tmp_path):

@@ -2,6 +2,7 @@
 
 Each checkpoint's policy drives one lap of every train road, test road and validation road in
 both directions, without exploration. Per set of roads: laps, the step-weighted mean speed and
+mean abs(alpha) (is an offset from the centre the test roads' or also the train roads'?), and
 the per-step probability of leaving the road p (failed drives / steps driven), the quantity the
 objective trades against speed (`actors.evaluation.speed_tradeoff`). If a policy that crept to
 a speed where it fails the test roads still laps the train roads with a p near zero, the
@@ -40,6 +41,7 @@ def split_summary(results: list[dict]) -> dict[str, float]:
                 "laps": int(r["metrics"]["lap_completed"] >= 1),
                 "steps": float(r["metrics"]["episode_length"]),
                 "speed": float(r["metrics"]["average_speed"]),
+                "offcentre": float(r["metrics"]["offcenteredness"]),
             }
             for r in results
         ]
@@ -47,11 +49,15 @@ def split_summary(results: list[dict]) -> dict[str, float]:
 
 
 def pool(parts: list[dict]) -> dict:
-    """Drives, laps and steps summed, speed weighted by steps, p = failed drives per step."""
+    """Drives, laps and steps summed, speed and mean abs(alpha) weighted by steps (the latter only
+    where every part has it: cached entries made before it have not), p = failed drives per step."""
     drives, laps = sum(p["drives"] for p in parts), sum(p["laps"] for p in parts)
     steps = sum(p["steps"] for p in parts)
-    speed = sum(p["speed"] * p["steps"] for p in parts) / steps
-    return {"drives": drives, "laps": laps, "steps": steps, "speed": speed, "p": (drives - laps) / steps}
+    out = {"drives": drives, "laps": laps, "steps": steps, "p": (drives - laps) / steps}
+    for key in ("speed", "offcentre"):
+        if all(key in p for p in parts):
+            out[key] = sum(p[key] * p["steps"] for p in parts) / steps
+    return out
 
 
 def roads(cfg: RunConfig) -> dict[str, list[str]]:
@@ -100,18 +106,22 @@ def measure_all(paths: list[Path], cache: Path | None, measure: Callable[[Path],
     return {str(p): done[str(p)] for p in paths}
 
 
+def _offcentre(split: dict) -> str:
+    return f"{split['offcentre']:.3f}" if "offcentre" in split else "-"
+
+
 def report(measured: dict[str, dict], fail_below: int = 11) -> list[str]:
     lines = [
         "| checkpoint | updates | test laps | test speed | test p (x 1e-4) | train laps | train speed "
-        "| train p (x 1e-4) | validation laps | validation p (x 1e-4) |",
-        "|" + " --- |" * 10,
+        "| train p (x 1e-4) | validation laps | validation p (x 1e-4) | test abs(alpha) | train abs(alpha) |",
+        "|" + " --- |" * 12,
     ]
     for path, m in measured.items():
         t, tr, v = m["test"], m["train"], m["validation"]
         lines.append(
             f"| {path} | {m['updates']} | {t['laps']}/{t['drives']} | {t['speed']:.1f} | {t['p'] * 1e4:.1f} "
             f"| {tr['laps']}/{tr['drives']} | {tr['speed']:.1f} | {tr['p'] * 1e4:.1f} "
-            f"| {v['laps']}/{v['drives']} | {v['p'] * 1e4:.1f} |"
+            f"| {v['laps']}/{v['drives']} | {v['p'] * 1e4:.1f} | {_offcentre(t)} | {_offcentre(tr)} |"
         )
     for name, keep in (
         (f"failing the test roads (< {fail_below} laps)", lambda m: m["test"]["laps"] < fail_below),
