@@ -1,12 +1,13 @@
 """critic_probe: the critic read along a policy's own drives, before its crashes and on its laps."""
 
 import dataclasses
+from types import SimpleNamespace
 
 import numpy as np
 import pytest
 import torch
 
-from actors.evaluation.critic_probe import discounted_returns, probe_steps, recording_policy, summarise
+from actors.evaluation.critic_probe import discounted_returns, mirrored_probe, probe_steps, recording_policy, summarise
 from actors.evaluation.evaluate import evaluate
 from common.config.agent import AgentConfig
 from common.networks import make_policy
@@ -34,6 +35,17 @@ def test_the_sweep_finds_the_critics_best_speed_and_the_gradients_sign():
     assert np.allclose(probe["dq_dsteer"], 1.0)
 
 
+def test_the_mirrored_probe_reads_the_critic_at_the_mirrored_action_and_the_actors_asymmetry():
+    x_m = torch.tensor([[0.3, -0.2], [0.9, 0.5]])
+    action = torch.tensor([[0.2, 0.4], [-0.5, 0.1]])
+    equivariant = SimpleNamespace(actor=lambda x: torch.stack([torch.tensor([-0.2, 0.5]), x[:, 1]], 1))
+    out = mirrored_probe(equivariant, PeakedCritic(), x_m, action)
+    assert np.allclose(out["dq_dsteer_mirrored"], 1.0)  # Q rises steering left wherever it is read
+    assert np.allclose(out["steer_asymmetry"], 0.0)  # it steers the mirror of the step's steering
+    one_sided = SimpleNamespace(actor=lambda x: torch.full((len(x), 2), 0.2))
+    assert np.allclose(mirrored_probe(one_sided, PeakedCritic(), x_m, action)["steer_asymmetry"], [0.4, -0.3])
+
+
 def test_windows_pool_pre_crash_and_lapping_steps():
     n = 40
     crash = {"metrics": {"lap_completed": 0.0}, "terminated": True, "ddpg_reward": np.ones(n)}
@@ -47,6 +59,8 @@ def test_windows_pool_pre_crash_and_lapping_steps():
         "best_speed_action": np.full(n, -1.0),
         "dq_dspeed": np.full(n, 2.0),
         "dq_dsteer": np.full(n, 0.5),
+        "dq_dsteer_mirrored": np.full(n, 0.5),  # at -alpha, Q rising to the left points to the centre there
+        "steer_asymmetry": np.full(n, -0.2),
     }
     out = summarise([crash, lap], [probe, probe], discount=0.0, v_max=20.0, before=(30, 5), horizon=10)
     assert out["pre_crash"]["steps"] == 25 and out["lapping"]["steps"] == 30
@@ -56,6 +70,10 @@ def test_windows_pool_pre_crash_and_lapping_steps():
     # right of the centre before the crash, Q rising to the left: every step points to the centre
     assert out["pre_crash"]["off_centre_steps"] == 25 and out["pre_crash"]["to_centre"] == 1.0
     assert out["lapping"]["off_centre_steps"] == 10 and out["lapping"]["to_centre"] == 0.0
+    assert out["lapping"]["to_centre_mirrored"] == 1.0 and out["pre_crash"]["to_centre_mirrored"] == 0.0
+    assert out["lapping"]["steer_asymmetry"] == pytest.approx(0.2)
+    older = {k: v for k, v in probe.items() if k not in ("dq_dsteer_mirrored", "steer_asymmetry")}  # a cached probe
+    assert summarise([lap], [older], discount=0.0, v_max=20.0, horizon=10)["lapping"]["to_centre_mirrored"] is None
     assert out["lapping"]["mean_alpha"] == pytest.approx(5 / 30) and out["lapping"]["mean_abs_alpha"] == pytest.approx(
         5 / 30
     )
@@ -71,3 +89,4 @@ def test_the_recorded_phi_and_actions_are_the_drives_own():
         recorded = np.stack([record[t][1][i].numpy() for t in range(len(drive["trace"]["action"]))])
         assert np.array_equal(recorded, drive["trace"]["action"])
         assert record[0][0].shape == (2, policy.gvf.n_predictions + 3)  # phi: predictions, speed, last action
+        assert record[0][2].shape == record[0][0].shape and not torch.equal(record[0][2], record[0][0])

@@ -13,6 +13,9 @@ the policy's action and with the target speed swept over its range, the steering
 - `dq_dsteer`: the same for the steering. At steps off the centre (|alpha| >= `OFF_CENTRE`)
   `to_centre` is the share where it points back to the centre (steering left, positive, moves
   alpha up): a critic that charges the offset says so there; about half is one that does not.
+  `to_centre_mirrored` is the same share at the steps' mirror images (frames flipped, alpha and
+  steering negated), which the learner trains on as often as the steps themselves; and
+  `steer_asymmetry` the actor's mean |pi(mirrored)_steer + pi_steer| there (0: mirror-equivariant).
 
 "pre-crash" is the window of steps 30 to 5 before a termination (`summarise`'s `before`);
 "lapping" is every step of a completed lap at least 300 steps before its end (`horizon`: the
@@ -68,14 +71,18 @@ def load_critic(state: dict, agent: AgentConfig, scale: ScaleConfig):
 
 
 def recording_policy(policy: torch.nn.Module, record: list):
-    """A PolicyFn of the predictive `policy` that appends each step's (phi, action) to `record`."""
+    """A PolicyFn of the predictive `policy` that appends each step's (phi, action, phi of the
+    mirrored observation) to `record`: the frames flipped left-right and the last steering negated,
+    as the learner mirrors its minibatches (`learner.mirror`); the drive itself is not mirrored."""
 
     @torch.no_grad()
     def act(obs: dict, info: dict) -> np.ndarray:
         image, speed, last = (torch.from_numpy(np.asarray(obs[k])) for k in ("image", "speed", "last_action"))
         x = phi(policy.gvf(image, speed, last), speed, last)
         action = policy.actor(x).clamp(-1.0, 1.0)
-        record.append((x, action))
+        last_m = torch.cat([-last[..., :1], last[..., 1:]], -1)
+        x_m = phi(policy.gvf(image.flip(-1), speed, last_m), speed, last_m)
+        record.append((x, action, x_m))
         return action.numpy()
 
     return act
@@ -99,6 +106,19 @@ def probe_steps(critic: torch.nn.Module, x: torch.Tensor, action: torch.Tensor) 
     }
 
 
+def mirrored_probe(policy: torch.nn.Module, critic: torch.nn.Module, x_m: torch.Tensor, action: torch.Tensor):
+    """At the mirror images of the steps: dQ1/d(steering) at the mirrored action (steering negated),
+    and the actor's own steering there plus its steering at the step (0 for a mirror-equivariant
+    actor: `steer_asymmetry`)."""
+    mirrored = torch.cat([-action[:, :1], action[:, 1:]], -1)
+    with torch.no_grad():
+        steer_m = policy.actor(x_m)[:, 0].clamp(-1.0, 1.0)
+    return {
+        "dq_dsteer_mirrored": probe_steps(critic, x_m, mirrored)["dq_dsteer"],
+        "steer_asymmetry": (steer_m + action[:, 0]).numpy(),
+    }
+
+
 def summarise(
     drives: list[dict], probes: list[dict], discount: float, v_max: float, before=(30, 5), horizon: int = 300
 ) -> dict:
@@ -118,14 +138,14 @@ def summarise(
         )
         alpha = drive["trace"]["alpha"][keep]
         centring = -np.sign(alpha) * np.sign(probe["dq_dsteer"][keep])  # +1: Q rises steering to the centre
-        parts[name].append(
-            np.stack(
-                [probe["q"][keep] - g[keep], speed_gap[keep], np.sign(probe["dq_dspeed"][keep]), alpha, centring], 1
-            )
-        )
+        # at the mirror image alpha is -alpha: there the centre is the other way
+        mirrored = np.sign(alpha) * np.sign(probe.get("dq_dsteer_mirrored", np.full(len(g), np.nan))[keep])
+        asymmetry = probe.get("steer_asymmetry", np.full(len(g), np.nan))[keep]
+        columns = [probe["q"][keep] - g[keep], speed_gap[keep], np.sign(probe["dq_dspeed"][keep]), alpha, centring]
+        parts[name].append(np.stack([*columns, mirrored, asymmetry], 1))
     out = {}
     for name, chunks in parts.items():
-        rows = np.concatenate(chunks) if chunks else np.zeros((0, 5))
+        rows = np.concatenate(chunks) if chunks else np.zeros((0, 7))
         off = rows[np.abs(rows[:, 3]) >= OFF_CENTRE]
         out[name] = {
             "drives": len(chunks),
@@ -138,6 +158,8 @@ def summarise(
             "mean_abs_alpha": float(np.abs(rows[:, 3]).mean()) if len(rows) else None,
             "off_centre_steps": len(off),
             "to_centre": float((off[:, 4] > 0).mean()) if len(off) else None,
+            "to_centre_mirrored": float((off[:, 5] > 0).mean()) if len(off) and not np.isnan(off[:, 5]).any() else None,
+            "steer_asymmetry": float(np.abs(off[:, 6]).mean()) if len(off) and not np.isnan(off[:, 6]).any() else None,
         }
     return out
 
@@ -159,7 +181,9 @@ def measure_checkpoint(path: Path, cfg: RunConfig | None = None, splits=("test",
         n = len(drive["trace"]["reward"])
         x = torch.stack([record[t][0][i] for t in range(n)])
         action = torch.from_numpy(drive["trace"]["action"])
-        probes.append(probe_steps(critic, x, action))
+        probe = probe_steps(critic, x, action)
+        probe.update(mirrored_probe(policy, critic, torch.stack([record[t][2][i] for t in range(n)]), action))
+        probes.append(probe)
         drive["terminated"] = drive["metrics"]["lap_completed"] < 1 and n < cfg.env.max_steps
         terminated = np.zeros(n)
         terminated[-1] = drive["terminated"]
@@ -197,14 +221,15 @@ def report(measured: dict[str, dict]) -> list[str]:
         f"Steering on the laps (|alpha| >= {OFF_CENTRE} counts as off the centre; alpha > 0 is left of it):",
         "",
         "| checkpoint | mean alpha lapping | mean abs(alpha) lapping | off-centre steps | dQ/dsteer to the centre there "
-        "| pre-crash: off-centre steps | to the centre |",
-        "|" + " --- |" * 7,
+        "| at their mirror images | actor's steering asymmetry there | pre-crash: off-centre steps | to the centre |",
+        "|" + " --- |" * 9,
     ]
     for path, m in measured.items():
         c, lap = m["pre_crash"], m["lapping"]
         lines.append(
             f"| {path} | {cell(lap, 'mean_alpha', '+.3f')} | {cell(lap, 'mean_abs_alpha', '.3f')} "
             f"| {cell(lap, 'off_centre_steps', 'd')} | {cell(lap, 'to_centre', '.2f')} "
+            f"| {cell(lap, 'to_centre_mirrored', '.2f')} | {cell(lap, 'steer_asymmetry', '.3f')} "
             f"| {cell(c, 'off_centre_steps', 'd')} | {cell(c, 'to_centre', '.2f')} |"
         )
     return lines
