@@ -209,10 +209,7 @@ class LearningCore:
         else:
             ddpg_batch = observation_batch(uniform, reward, lowdim=self.nets.representation == "lowdim")
         loss_ddpg, out = self.ddpg.loss(ddpg_batch)
-        total = loss_ddpg + sum(losses.values())
-        if (self.updates + 1) % self.agent.metrics_every == 0:  # reported, not learned from; before the step
-            losses.update(steering_diagnostics(*self.ddpg.action_gradient(ddpg_batch), uniform["alpha"]))
-        return self._apply(total, losses, out, ddpg_batch)
+        return self._apply(loss_ddpg + sum(losses.values()), losses, out, ddpg_batch, uniform["alpha"])
 
     def update_representation(self) -> dict[str, float]:
         """Algorithm 2's update (offline): lines 11-17 alone, the GVFs and g without DDPG."""
@@ -238,6 +235,7 @@ class LearningCore:
         losses: dict[str, Tensor],
         out: TensorDictBase | None = None,
         ddpg_batch: TensorDictBase | None = None,
+        alpha: Tensor | None = None,
     ) -> dict[str, float]:
         """Backward, the finite check, the optimisers' steps (DDPG's only with its batch), metrics."""
         self._zero_grad()
@@ -250,6 +248,7 @@ class LearningCore:
         report = (self.updates + 1) % self.agent.metrics_every == 0
         if report and ddpg_batch is not None:  # before the step: the gradient and actions that made it
             losses.update(actor_diagnostics(self.nets.actor, self.ddpg.loss_module.actor_network, ddpg_batch))
+            losses.update(steering_diagnostics(*self.ddpg.action_gradient(ddpg_batch), alpha))  # alpha of its states
         self._step(ddpg=ddpg_batch is not None)
         self.updates += 1
         if not report:
