@@ -207,6 +207,12 @@ def phi_mirror_sign(n_predictions: int) -> Tensor:
     return torch.tensor([-1.0] * n_predictions + [1.0, -1.0, 1.0])
 
 
+def steer_negated(action: Tensor, sign: Tensor | float = -1.0) -> Tensor:
+    """An action (or last action) with its steering, the first entry, times `sign` (-1: its mirror
+    image left-right; a (B, 1) sign mirrors some items of a batch); the target speed stays."""
+    return torch.cat([action[..., :1] * sign, action[..., 1:]], -1)
+
+
 class Policy(nn.Module):
     """The acting network: obs mapping (image, speed, last_action[, alpha, beta]) -> action.
 

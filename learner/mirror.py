@@ -14,9 +14,7 @@ import torch
 from tensordict import TensorDict, TensorDictBase
 from torch import Tensor
 
-
-def _steer_negated(action: Tensor, sign: Tensor) -> Tensor:
-    return torch.cat([action[:, :1] * sign, action[:, 1:]], -1)
+from common.networks import steer_negated
 
 
 def mirror(td: TensorDictBase, mask: Tensor) -> TensorDict:
@@ -30,8 +28,8 @@ def mirror(td: TensorDictBase, mask: Tensor) -> TensorDict:
     flip = mask.reshape(-1, 1, 1, 1)
     for part in (out, out["next"]):
         part["image"] = torch.where(flip, part["image"].flip(-1), part["image"])
-        part["last_action"] = _steer_negated(part["last_action"], sign)
+        part["last_action"] = steer_negated(part["last_action"], sign)
         part["alpha"] = part["alpha"] * sign
         part["beta"] = part["beta"] * sign
-    out["action"] = _steer_negated(td["action"], sign)
+    out["action"] = steer_negated(td["action"], sign)
     return out

@@ -43,7 +43,7 @@ from common import checkpoint
 from common.config.agent import AgentConfig, ScaleConfig, shaped_reward, step_sizes
 from common.config.env import OFF_CENTRE
 from common.config.run import RunConfig
-from common.networks import make_networks, phi
+from common.networks import make_networks, phi, steer_negated
 
 SPEED_GRID = torch.linspace(-1.0, 1.0, 21)  # target-speed actions swept at every step
 Q_PREFIX = "qvalue_network_params.module."  # torchrl's loss module keeps the critics' weights here
@@ -80,7 +80,7 @@ def recording_policy(policy: torch.nn.Module, record: list):
         image, speed, last = (torch.from_numpy(np.asarray(obs[k])) for k in ("image", "speed", "last_action"))
         x = phi(policy.gvf(image, speed, last), speed, last)
         action = policy.actor(x).clamp(-1.0, 1.0)
-        last_m = torch.cat([-last[..., :1], last[..., 1:]], -1)
+        last_m = steer_negated(last)
         x_m = phi(policy.gvf(image.flip(-1), speed, last_m), speed, last_m)
         record.append((x, action, x_m))
         return action.numpy()
@@ -110,7 +110,7 @@ def mirrored_probe(policy: torch.nn.Module, critic: torch.nn.Module, x_m: torch.
     """At the mirror images of the steps: dQ1/d(steering) at the mirrored action (steering negated),
     and the actor's own steering there plus its steering at the step (0 for a mirror-equivariant
     actor: `steer_asymmetry`)."""
-    mirrored = torch.cat([-action[:, :1], action[:, 1:]], -1)
+    mirrored = steer_negated(action)
     with torch.no_grad():
         steer_m = policy.actor(x_m)[:, 0].clamp(-1.0, 1.0)
     return {
