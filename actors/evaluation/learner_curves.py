@@ -15,7 +15,9 @@ from pathlib import Path
 
 from tensorboard.backend.event_processing.event_accumulator import EventAccumulator
 
-TAGS = ("diag/", "train/q_mean", "losses/actor", "losses/critic", "losses/td")
+# train/q_ takes the minibatch's Q mean, min, max and target mean: a Q range that sinks as a whole
+# is a critic drifting from the returns, which the mean alone does not tell from a wider spread
+TAGS = ("diag/", "train/q_", "losses/actor", "losses/critic", "losses/td")
 EVERY = 500  # updates per bin: the periodic evaluations' spacing
 
 
