@@ -160,14 +160,16 @@ class LearnerService:
         return batch.shape[0]
 
     # -- training -------------------------------------------------------------------------
-    def train(self, max_updates: int) -> dict:
-        """As many updates as the rate limit owes (at most `max_updates`), publishing and
-        checkpointing on their schedules; returns the last metrics."""
+    def train(self, max_updates: int, stop: threading.Event | None = None) -> dict:
+        """As many updates as the rate limit owes (at most `max_updates`, fewer once `stop` is
+        set), publishing and checkpointing on their schedules; returns the last metrics."""
         metrics: dict = {}
         owed = self.limiter.owed(self.intake.counters["inserted"], self.core.ready)
         if owed and self.core.needs_warm_start:
             self.warm_start()
         for _ in range(min(owed, max_updates)):
+            if stop is not None and stop.is_set():
+                break  # 32 updates take 10 s on a slow machine: past the launcher's grace, the last checkpoint was lost
             metrics = self.core.update() or metrics
             self.limiter.done += 1
             self.flow(time.monotonic())  # a long run of updates must keep the pause fresh
@@ -226,7 +228,7 @@ class LearnerService:
                 t0 = time.perf_counter()
                 n = self.ingest()
                 t1 = time.perf_counter()
-                metrics = self.train(max_updates=32) or metrics
+                metrics = self.train(max_updates=32, stop=stop) or metrics
                 t2 = time.perf_counter()
                 clock.spent(t1 - t0, t2 - t1)
                 if n == 0 and t2 - t1 < 1e-3:
