@@ -189,7 +189,9 @@ def test_router_restart_resumes_traffic_and_lost_chunks_are_counted_exactly(tmp_
         wait_for(run.progress, lambda p: p["chunks"] > 20, 120, "traffic before the restart")
         os.kill(run.procs["router"].pid, signal.SIGKILL)
         run.procs["router"].wait(10)
-        time.sleep(3.0)  # the actor keeps driving; its puts go nowhere
+        # the actor keeps driving and its puts go nowhere; longer than a flow pause holds (5 x
+        # flow_refresh_s), so an actor the learner paused just before the kill sends into the outage too
+        time.sleep(6.5)
         run.router()
         chunks_now = read_json(run.progress)["chunks"]
         wait_for(run.progress, lambda p: p["chunks"] > chunks_now + 20, 90, "traffic after the restart")
@@ -201,7 +203,7 @@ def test_router_restart_resumes_traffic_and_lost_chunks_are_counted_exactly(tmp_
         p = wait_for(
             run.progress, lambda p: p["chunks"] + p["lost_chunks"] >= stats["chunks"], 90, "learner to ingest the rest"
         )
-        assert p["lost_chunks"] > 0  # the outage lost something ...
+        assert p["lost_chunks"] > 0, p  # the outage lost something ...
         assert p["chunks"] + p["lost_chunks"] == stats["chunks"]  # ... and the counter accounts for exactly that
     finally:
         run.close()
