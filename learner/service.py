@@ -32,6 +32,7 @@ from learner.run_log import RunLog
 log = logging.getLogger(__name__)
 ROLE = "learner"
 WARM_START_PAUSE_S = 120.0  # longest the warm start may hold the actors; flow() resumes them sooner
+PAUSE_REFRESHES = 5  # a flow pause lives this many flow_refresh_s: a few lost repeats don't end it
 
 
 def resolve_device(name: str) -> str:
@@ -205,7 +206,7 @@ class LearnerService:
         paused = self.limiter.should_pause(ahead)
         if paused != was or now - self._flow_sent >= self.lc.flow_refresh_s:
             command = "pause" if paused else "resume"
-            expires = 5 * self.lc.flow_refresh_s
+            expires = PAUSE_REFRESHES * self.lc.flow_refresh_s
             self.flow_out.put(
                 wire.encode(wire.Control(command, reason=f"{ahead:.0f} transitions ahead", expires_s=expires))
             )

@@ -14,7 +14,12 @@ import numpy as np
 import zenoh
 
 from common import wire
+from common.config.run import LearnerConfig
+from learner.service import PAUSE_REFRESHES
 from tests.helpers import TINY, free_port, script, stop
+
+# longer than a flow pause lives, so an actor the learner paused just before the kill sends into the outage too
+OUTAGE_S = PAUSE_REFRESHES * LearnerConfig().flow_refresh_s + 1.5
 
 
 def read_json(path):
@@ -189,9 +194,7 @@ def test_router_restart_resumes_traffic_and_lost_chunks_are_counted_exactly(tmp_
         wait_for(run.progress, lambda p: p["chunks"] > 20, 120, "traffic before the restart")
         os.kill(run.procs["router"].pid, signal.SIGKILL)
         run.procs["router"].wait(10)
-        # the actor keeps driving and its puts go nowhere; longer than a flow pause holds (5 x
-        # flow_refresh_s), so an actor the learner paused just before the kill sends into the outage too
-        time.sleep(6.5)
+        time.sleep(OUTAGE_S)  # the actor keeps driving; its puts go nowhere
         run.router()
         chunks_now = read_json(run.progress)["chunks"]
         wait_for(run.progress, lambda p: p["chunks"] > chunks_now + 20, 90, "traffic after the restart")

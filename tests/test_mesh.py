@@ -19,6 +19,8 @@ from pathlib import Path
 
 import pytest
 
+from common.config.run import LearnerConfig
+from learner.service import PAUSE_REFRESHES
 from tests.deploy_helpers import rx_bytes
 from tests.helpers import BIN, TINY, stop
 
@@ -34,7 +36,8 @@ ACTORS = ("far-0", "far-1")
 # g's warm start (200 updates at once) is seconds on an idle core and minutes on a busy one, and
 # smaller batches reach the updates checked below sooner: the test is about the network, not learning
 MESH = [*TINY, "agent.behaviour_warmup_updates=0", "scale.batch_size=8", "scale.warmup=16", "run=mesh"]
-OUTAGE_S = 6.0  # longer than a learner's pause lives (5 x flow_refresh_s): the actors drive while router B is down
+# longer than a learner's pause lives: the actors drive while router B is down
+OUTAGE_S = PAUSE_REFRESHES * LearnerConfig().flow_refresh_s + 1.0
 
 
 @pytest.fixture
