@@ -13,11 +13,17 @@ from tests.helpers import compose_run
 QUIET = ["learner.max_owed_updates=0", "learner.publish_every=1000"]
 
 
-def test_a_stop_set_during_a_batch_of_updates_ends_it_after_the_update_under_way(tmp_path):
+def owing_service(tmp_path) -> LearnerService:
+    """A learner past its warm-up (1 update done) whose rate limit owes far more than one batch."""
     service = LearnerService(compose_run([*TINY_RUN, "transport=inproc", *QUIET]), None, tmp_path)
     service.core.add(lanedrive_data()[:300])
     service.train(max_updates=1)  # the warm-up is met here, and the warm start done
-    service.intake.counters["inserted"] = 10**6  # then the rate limit owes far more than one batch
+    service.intake.counters["inserted"] = 10**6
+    return service
+
+
+def test_a_stop_set_during_a_batch_of_updates_ends_it_after_the_update_under_way(tmp_path):
+    service = owing_service(tmp_path)
     stop, real_update = threading.Event(), service.core.update
 
     def update_then_stop():
@@ -33,9 +39,6 @@ def test_a_stop_set_during_a_batch_of_updates_ends_it_after_the_update_under_way
 
 
 def test_without_a_stop_the_batch_runs_to_its_limit(tmp_path):
-    service = LearnerService(compose_run([*TINY_RUN, "transport=inproc", *QUIET]), None, tmp_path)
-    service.core.add(lanedrive_data()[:300])
-    service.train(max_updates=1)
-    service.intake.counters["inserted"] = 10**6
+    service = owing_service(tmp_path)
     service.train(max_updates=5, stop=threading.Event())
     assert service.core.updates == 1 + 5
