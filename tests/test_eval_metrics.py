@@ -39,3 +39,9 @@ def test_constant_actions_are_perfectly_comfortable():
 def test_empty_drive_is_refused():
     with pytest.raises(ValueError, match="at least one step"):
         drive_metrics([], [], [], [], np.zeros((0, 2)), False)
+
+
+def test_reward_per_second_follows_the_control_rate():
+    drive = ([1.0, 0.5], [10.0] * 2, [0.0] * 2, [0.0] * 2, [[0.0, 0.0]] * 2, True)
+    assert drive_metrics(*drive)["reward_per_s"] == pytest.approx(7.5)  # 10 Hz, the paper's
+    assert drive_metrics(*drive, control_hz=5.0)["reward_per_s"] == pytest.approx(3.75)  # env.vehicle.dt=0.2

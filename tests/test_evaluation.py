@@ -5,10 +5,12 @@ import subprocess
 import threading
 
 import numpy as np
+import pytest
 
 from actors.evaluation.evaluate import evaluate
 from actors.evaluation.periodic import better, selection_key
 from actors.evaluation.policies import checkpoint_policy, kinematic_policy
+from common.config.env import VehicleConfig
 from common.launch import train
 from tests.helpers import BIN, TINY, compose_run
 
@@ -34,6 +36,15 @@ def test_drives_run_together_give_what_each_gives_alone():
         assert a["metrics"] == b["metrics"] and a["metrics"]["lap_completed"] == 1.0
         assert all(np.array_equal(a["trace"][k], b["trace"][k]) for k in a["trace"])
     assert len(together[0]["trace"]["alpha"]) != len(together[2]["trace"]["alpha"])  # laps of unequal length
+
+
+def test_a_slower_control_rate_laps_and_counts_reward_per_second_at_its_own_rate():
+    (drive,) = evaluate(
+        kinematic_policy(VehicleConfig(dt=0.2)), tracks=["sage"], directions=("ccw",), vehicle={"dt": 0.2}
+    )
+    m = drive["metrics"]
+    assert m["lap_completed"] == 1.0 and m["near_out_of_lane"] == 0.0
+    assert m["reward_per_s"] == pytest.approx(5 * m["reward_per_step"])  # 5 steps per second, not 10
 
 
 def test_the_best_evaluation_has_most_laps_then_least_near_out_of_lane_then_reward_per_second():

@@ -14,7 +14,7 @@ import numpy as np
 
 from actors.envs.sim import LaneDriveSim
 from actors.envs.simulators import is_torcs, road_names
-from actors.evaluation.metrics import drive_metrics
+from actors.evaluation.metrics import CONTROL_HZ, drive_metrics
 from common.config.env import EnvConfig
 
 # policy(obs, info) -> actions (n, 2) in [-1, 1], for a batch of n cars (info: name -> (n,) array)
@@ -84,11 +84,12 @@ def _drive(
                 traces[i][key].append(value)
             over = horizons is not None and len(traces[i]["reward"]) >= horizons[i]
             running[i] = not (terminated[i] or truncated[i] or info["lap_completed"] or over)
+    hz = CONTROL_HZ if torcs else 1.0 / sim.cfg.vehicle.dt  # TORCS steps 0.1 s whatever its config says
     results = []
     for (_, d), info, trace in zip(drives, infos, traces):
         trace = {k: np.asarray(v, np.float32) for k, v in trace.items()}
         metrics = drive_metrics(
-            trace["reward"], trace["speed"], trace["alpha"], trace["beta"], trace["action"], info["lap_completed"]
+            trace["reward"], trace["speed"], trace["alpha"], trace["beta"], trace["action"], info["lap_completed"], hz
         )
         results.append({"track": info["track"], "direction": d, "metrics": metrics, "trace": trace})
     return results

@@ -16,11 +16,13 @@ from __future__ import annotations
 import numpy as np
 
 NEAR_OUT = 0.75
-CONTROL_HZ = 10.0
+CONTROL_HZ = 10.0  # the paper's control rate (TORCS steps 0.1 s; LaneDrive's env.vehicle.dt may differ)
 
 
-def drive_metrics(reward, speed, alpha, beta, actions, lap_completed: bool) -> dict[str, float]:
-    """Metrics of one drive; actions (N, 2) = (steering, target speed)."""
+def drive_metrics(
+    reward, speed, alpha, beta, actions, lap_completed: bool, control_hz: float = CONTROL_HZ
+) -> dict[str, float]:
+    """Metrics of one drive; actions (N, 2) = (steering, target speed); `control_hz` steps per second."""
     reward, speed = np.asarray(reward, float), np.asarray(speed, float)
     alpha, beta = np.asarray(alpha, float), np.asarray(beta, float)
     actions = np.asarray(actions, float).reshape(-1, 2)
@@ -30,7 +32,7 @@ def drive_metrics(reward, speed, alpha, beta, actions, lap_completed: bool) -> d
     d2 = np.diff(actions, n=2, axis=0)
     out = {
         "reward_per_step": float(reward.mean()),
-        "reward_per_s": float(reward.mean() * CONTROL_HZ),
+        "reward_per_s": float(reward.mean() * control_hz),
         "average_speed": float(speed.mean()),
         "offcenteredness": float(np.abs(alpha).mean()),
         "abs_road_angle": float(np.abs(beta).mean()),
