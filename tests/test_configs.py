@@ -52,6 +52,9 @@ def test_bad_values_are_refused_naming_the_field(override, field):
         ("learner.inbox_wait_s=5.0", "inbox_wait_s"),
         ("learner.inbox_wait_s=-1", "inbox_wait_s"),
         ("agent=ddpg_image learner.rho_at=actor", "rho_at"),
+        ("actor.ou_theta=150", "ou_theta"),
+        ("actor.ou_dt=0", "ou_dt"),
+        ("actor.ou_sigma=-0.1", "ou_sigma"),
     ],
 )
 def test_bad_learning_values_are_refused_naming_the_field(override, field):

@@ -23,6 +23,13 @@ def test_stationary_std_and_autocorrelation_match_theory():
     assert abs(x0.mean()) < 0.005
 
 
+def test_theta_dt_of_one_makes_the_noise_white_with_std_sigma_sqrt_dt():
+    ou = OrnsteinUhlenbeck(2000, 2, theta=100.0, sigma=0.75, dt=0.01, seed=0)
+    x0, x1 = ou.sample(), ou.sample()
+    assert abs(x0.std() - 0.075) < 0.004, x0.std()
+    assert abs(float(np.corrcoef(x0.ravel(), x1.ravel())[0, 1])) < 0.05  # the next step forgets this one
+
+
 def test_reset_restarts_only_the_masked_envs():
     ou = OrnsteinUhlenbeck(4, 2, seed=1)
     for _ in range(100):

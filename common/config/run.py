@@ -34,7 +34,7 @@ class ActorConfig:
     ou_sigma: float = 0.1
     """OU noise scale (paper: 0.1)."""
     ou_dt: float = 0.01
-    """OU time step (paper: 0.01)."""
+    """OU time step (paper: 0.01); theta * dt = 1 makes the noise white: Gaussian with std sigma * sqrt(dt)."""
     send_queue: int = 256
     """Chunks waiting for the network before the oldest is dropped (and counted)."""
     send_timeout_s: float = 0.5
@@ -238,6 +238,11 @@ def to_objects(cfg: Any) -> tuple[RunConfig, AgentConfig, ScaleConfig]:
     actor_squash(run.agent, run.scale)  # refuses a bad value naming the field
     check_scale(run.scale)
     check_agent(run.agent)
+    a = run.actor
+    if not 0.0 < a.ou_theta * a.ou_dt <= 1.0:  # past 1 the Euler step overshoots the mean: the noise oscillates
+        raise ValueError(f"actor.ou_theta * actor.ou_dt must be in (0, 1], got {a.ou_theta} * {a.ou_dt}")
+    if a.ou_sigma < 0:
+        raise ValueError(f"actor.ou_sigma must be >= 0, got {a.ou_sigma}")
     if run.learner.rho_at not in RHO_AT:
         raise ValueError(f"learner.rho_at must be one of {RHO_AT}, got {run.learner.rho_at!r}")
     if not 0.0 <= run.learner.inbox_wait_s < ZENOH_WAIT_BEFORE_CLOSE_S:
