@@ -28,6 +28,16 @@ def _tensors(arrays: dict) -> dict[str, torch.Tensor]:
     }  # float16 on the wire: acts in float32
 
 
+def ou_parameters(actor: ActorConfig) -> tuple[np.ndarray, np.ndarray]:
+    """(theta, sigma) per action (steering, target speed): the steering's own where set."""
+
+    def pick(own, shared):
+        return own if own is not None else shared
+
+    theta = np.array([pick(actor.ou_steer_theta, actor.ou_theta), actor.ou_theta], np.float32)
+    return theta, np.array([pick(actor.ou_steer_sigma, actor.ou_sigma), actor.ou_sigma], np.float32)
+
+
 class Acting:
     """Batched policy inference with per-env OU exploration (paper: theta 1.0, sigma 0.1, dt 0.01)."""
 
@@ -36,7 +46,8 @@ class Acting:
     ) -> None:
         self.policy = make_policy(agent, scale).eval()
         self.lowdim = agent.representation == "lowdim"
-        self.noise = OrnsteinUhlenbeck(n_envs, 2, theta=actor.ou_theta, sigma=actor.ou_sigma, dt=actor.ou_dt, seed=seed)
+        theta, sigma = ou_parameters(actor)
+        self.noise = OrnsteinUhlenbeck(n_envs, 2, theta=theta, sigma=sigma, dt=actor.ou_dt, seed=seed)
         self.version, self.epoch = -1, None
         self.predictive = agent.representation == "predictive"
         self._behaviour_shape = (scale.conv_channels, scale.behaviour_hidden)

@@ -17,15 +17,15 @@ import numpy as np
 
 
 class OrnsteinUhlenbeck:
-    """OU noise of shape (n_envs, action_dim), numpy, float32."""
+    """OU noise of shape (n_envs, action_dim), numpy, float32; theta and sigma scalars or one per action."""
 
     def __init__(
         self,
         n_envs: int,
         action_dim: int = 2,
         *,
-        theta: float = 1.0,
-        sigma: float = 0.1,
+        theta: float | np.ndarray = 1.0,
+        sigma: float | np.ndarray = 0.1,
         dt: float = 0.01,
         mu: float = 0.0,
         seed: int | None = None,

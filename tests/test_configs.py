@@ -55,6 +55,8 @@ def test_bad_values_are_refused_naming_the_field(override, field):
         ("actor.ou_theta=150", "ou_theta"),
         ("actor.ou_dt=0", "ou_dt"),
         ("actor.ou_sigma=-0.1", "ou_sigma"),
+        ("actor.ou_steer_theta=101", "ou_steer_theta"),
+        ("actor.ou_steer_sigma=-1", "ou_steer_sigma"),
     ],
 )
 def test_bad_learning_values_are_refused_naming_the_field(override, field):

@@ -3,7 +3,9 @@ stationary spread and autocorrelation, and resets are per environment."""
 
 import numpy as np
 
+from actors.acting import ou_parameters
 from actors.exploration import OrnsteinUhlenbeck
+from common.config.run import ActorConfig
 
 
 def test_stationary_std_and_autocorrelation_match_theory():
@@ -28,6 +30,18 @@ def test_theta_dt_of_one_makes_the_noise_white_with_std_sigma_sqrt_dt():
     x0, x1 = ou.sample(), ou.sample()
     assert abs(x0.std() - 0.075) < 0.004, x0.std()
     assert abs(float(np.corrcoef(x0.ravel(), x1.ravel())[0, 1])) < 0.05  # the next step forgets this one
+
+
+def test_per_action_parameters_make_the_steering_white_and_leave_the_speed_slow():
+    theta, sigma = ou_parameters(ActorConfig(ou_steer_theta=100.0, ou_steer_sigma=0.75))
+    ou = OrnsteinUhlenbeck(2000, 2, theta=theta, sigma=sigma, dt=0.01, seed=0)
+    for _ in range(1000):
+        ou.sample()
+    x0, x1 = ou.sample(), ou.sample()
+    steer, speed = (float(np.corrcoef(x0[:, k], x1[:, k])[0, 1]) for k in (0, 1))
+    assert abs(steer) < 0.07 and speed > 0.97  # white steering; the paper's OU on the target speed
+    assert abs(x0[:, 0].std() - 0.075) < 0.006 and abs(x0[:, 1].std() - 0.1 / np.sqrt(2.0)) < 0.006
+    assert np.array_equal(ou_parameters(ActorConfig())[0], [1.0, 1.0])  # unset: the shared values
 
 
 def test_reset_restarts_only_the_masked_envs():

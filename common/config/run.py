@@ -35,6 +35,11 @@ class ActorConfig:
     """OU noise scale (paper: 0.1)."""
     ou_dt: float = 0.01
     """OU time step (paper: 0.01); theta * dt = 1 makes the noise white: Gaussian with std sigma * sqrt(dt)."""
+    ou_steer_theta: Optional[float] = None
+    """The steering's own OU mean reversion (None: ou_theta); 100 (theta * dt = 1) makes only the
+    steering's noise white, the target speed (acting through a 1-s lag) keeping the slow OU."""
+    ou_steer_sigma: Optional[float] = None
+    """The steering's own OU noise scale (None: ou_sigma)."""
     send_queue: int = 256
     """Chunks waiting for the network before the oldest is dropped (and counted)."""
     send_timeout_s: float = 0.5
@@ -239,10 +244,13 @@ def to_objects(cfg: Any) -> tuple[RunConfig, AgentConfig, ScaleConfig]:
     check_scale(run.scale)
     check_agent(run.agent)
     a = run.actor
-    if not 0.0 < a.ou_theta * a.ou_dt <= 1.0:  # past 1 the Euler step overshoots the mean: the noise oscillates
-        raise ValueError(f"actor.ou_theta * actor.ou_dt must be in (0, 1], got {a.ou_theta} * {a.ou_dt}")
-    if a.ou_sigma < 0:
-        raise ValueError(f"actor.ou_sigma must be >= 0, got {a.ou_sigma}")
+    for name in ("ou_theta", "ou_steer_theta"):  # past 1 the Euler step overshoots the mean: the noise oscillates
+        theta = getattr(a, name)
+        if theta is not None and not 0.0 < theta * a.ou_dt <= 1.0:
+            raise ValueError(f"actor.{name} * actor.ou_dt must be in (0, 1], got {theta} * {a.ou_dt}")
+    for name in ("ou_sigma", "ou_steer_sigma"):
+        if (getattr(a, name) or 0.0) < 0:
+            raise ValueError(f"actor.{name} must be >= 0, got {getattr(a, name)}")
     if run.learner.rho_at not in RHO_AT:
         raise ValueError(f"learner.rho_at must be one of {RHO_AT}, got {run.learner.rho_at!r}")
     if not 0.0 <= run.learner.inbox_wait_s < ZENOH_WAIT_BEFORE_CLOSE_S:
