@@ -21,8 +21,9 @@ import numpy as np
 from actors.evaluation.evaluate import evaluate
 from actors.evaluation.policies import checkpoint_policy, kinematic_policy
 from actors.exploration import OrnsteinUhlenbeck
+from common.config.run import ActorConfig
 
-DT = 0.01  # the OU step of the actors (actor.ou_dt)
+DT = ActorConfig.ou_dt  # the OU step the actors take by default
 
 
 def noisy(policy, theta: float, sigma: float, seed: int, record: list):
