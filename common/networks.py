@@ -105,6 +105,11 @@ class BranchedActor(nn.Module):
     (mirror_sign), the steering output is (f(x) - f(Mx)) / 2 and the target speed (g(x) + g(Mx)) / 2,
     so pi(Mx) is pi(x) with the steering negated and x = Mx (a centred car on a straight road) steers
     exactly 0. It is a buffer, so an actor built without it refuses these weights.
+
+    `steer_increment` > 0 makes the steering integrate: x's last two entries are the last action
+    (phi's layout), and the steering is clip(last steering + steer_increment * out, -1, 1), so a
+    weak feedback gain still removes a bend's steady-state offset (docs/results.md "Lever IS").
+    Also a buffer; odd under the mirror as both terms are.
     """
 
     def __init__(
@@ -114,6 +119,7 @@ class BranchedActor(nn.Module):
         n_actions: int = ACTION_DIM,
         squash: str = "clip",
         mirror_sign: Tensor | None = None,
+        steer_increment: float = 0.0,
     ):
         super().__init__()
         if squash not in SQUASHES:
@@ -125,6 +131,12 @@ class BranchedActor(nn.Module):
         if mirror_sign is not None and mirror_sign.shape != (in_dim,):
             raise ValueError(f"mirror_sign must have shape ({in_dim},), got {tuple(mirror_sign.shape)}")
         self.register_buffer("mirror_sign", None if mirror_sign is None else mirror_sign.float().clone())
+        if steer_increment < 0:
+            raise ValueError(f"steer_increment must be >= 0, got {steer_increment}")
+        increment = (
+            torch.tensor([float(steer_increment)]) if steer_increment > 0 else None
+        )  # (1,): the wire keeps no 0-d arrays
+        self.register_buffer("steer_increment", increment)
 
     def _raw(self, x: Tensor) -> Tensor:
         return torch.cat([branch(x) for branch in self.branches], -1)
@@ -134,7 +146,11 @@ class BranchedActor(nn.Module):
         if self.mirror_sign is not None:
             mirrored = self._raw(x * self.mirror_sign)
             out = torch.cat([out[..., :1] - mirrored[..., :1], out[..., 1:] + mirrored[..., 1:]], -1) * 0.5
-        return out.clamp(-1.0, 1.0) if self.squash == "clip" else torch.tanh(out)
+        out = out.clamp(-1.0, 1.0) if self.squash == "clip" else torch.tanh(out)
+        if self.steer_increment is not None:
+            steer = (x[..., -2:-1] + self.steer_increment * out[..., :1]).clamp(-1.0, 1.0)
+            out = torch.cat([steer, out[..., 1:]], -1)
+        return out
 
 
 class BranchedCritic(nn.Module):
@@ -273,7 +289,11 @@ def make_policy(agent: AgentConfig, scale: ScaleConfig) -> Policy:
         gvf = GVFNetwork(scale.conv_channels, scale.gvf_hidden, n_predictions(agent))
         sign = phi_mirror_sign(gvf.n_predictions) if scale.mirror_actor else None
         actor = BranchedActor(
-            gvf.n_predictions + LOW_DIM, scale.policy_hidden, squash=actor_squash(agent, scale), mirror_sign=sign
+            gvf.n_predictions + LOW_DIM,
+            scale.policy_hidden,
+            squash=actor_squash(agent, scale),
+            mirror_sign=sign,
+            steer_increment=scale.steer_increment,
         )
         return Policy("predictive", actor, gvf)
     lowdim = scale.lowdim_width if agent.representation == "lowdim" else 0

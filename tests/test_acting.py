@@ -59,3 +59,34 @@ def test_weights_that_do_not_fit_or_are_not_finite_are_counted_and_dropped(actin
     assert (acting.version, first_value(acting)) == (3, pytest.approx(0.1))  # the old policy kept
     with pytest.raises(WireError, match="missing"):
         acting.load(missing)
+
+
+def test_an_integrating_actor_takes_its_increment_over_the_wire_and_steers_from_the_last_action():
+    import dataclasses
+
+    import torch
+
+    from common.networks import make_policy
+
+    scale = ScaleConfig(
+        name="t", conv_channels=[2, 2, 2, 2, 2], gvf_hidden=[8], behaviour_hidden=[8], policy_hidden=[8]
+    )
+    scale = dataclasses.replace(scale, steer_increment=0.25)
+    agent = AgentConfig(name="gvf_ddpg")
+    learner_side = make_policy(agent, scale)
+    tensors = {k: v.numpy() for k, v in learner_side.state_dict().items()}
+    acting = Acting(agent, scale, ActorConfig(), 2, seed=0)
+    assert acting.load(decode(encode(Weights(3, tensors, epoch=1)), expect=Weights))
+    assert float(acting.policy.actor.steer_increment) == 0.25
+    obs = {
+        "image": np.zeros((2, 2, 64, 128), np.uint8),
+        "speed": np.full((2, 1), 0.5, np.float32),
+        "last_action": np.array([[0.6, 0.0], [-0.4, 0.0]], np.float32),
+    }
+    steer = acting.act(obs, {}, explore=False)[:, 0]
+    with torch.no_grad():
+        assert np.allclose(steer, learner_side({k: torch.from_numpy(v) for k, v in obs.items()}).numpy()[:, 0])
+    assert np.allclose(steer, [0.6, -0.4], atol=0.02)  # near-zero initial output: the steering holds
+    absolute = Acting(agent, dataclasses.replace(scale, steer_increment=0.0), ActorConfig(), 1, seed=0)
+    rejects = RejectCounter()
+    assert not absolute.adopt(decode(encode(Weights(3, tensors, epoch=1)), expect=Weights), rejects, "k")

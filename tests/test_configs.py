@@ -57,6 +57,8 @@ def test_bad_values_are_refused_naming_the_field(override, field):
         ("actor.ou_sigma=-0.1", "ou_sigma"),
         ("actor.ou_steer_theta=101", "ou_steer_theta"),
         ("actor.ou_steer_sigma=-1", "ou_steer_sigma"),
+        ("scale.steer_increment=-0.1", "steer_increment"),
+        ("scale.steer_increment=3", "steer_increment"),
     ],
 )
 def test_bad_learning_values_are_refused_naming_the_field(override, field):

@@ -135,6 +135,46 @@ def test_mirror_actor_is_built_from_the_scale_and_refused_by_an_actor_without_it
     assert "mirror_sign" not in str(list(make_policy(image_agent, on).state_dict()))  # baselines unaffected
 
 
+@pytest.mark.parametrize("squash", ["clip", "tanh"])
+def test_integrating_actor_moves_its_steering_from_the_last_by_at_most_the_increment(squash):
+    torch.manual_seed(0)
+    actor = BranchedActor(13, [16, 8], squash=squash, steer_increment=0.25)
+    x = torch.randn(256, 13)
+    x[:, -2] = torch.linspace(-1.0, 1.0, 256)  # the last steering, across its range
+    held = actor(x)  # near-zero last layers at init: the steering holds where it was
+    assert torch.allclose(held[:, 0], x[:, -2], atol=1e-2)
+    for branch in actor.branches:  # outputs far from 0 and past the squash's bounds
+        torch.nn.init.normal_(branch[-1].weight, std=3.0)
+    out = actor(x)
+    change = out[:, 0] - x[:, -2]
+    assert change.abs().max() <= 0.25 + 1e-6 and change.abs().max() > 0.2  # bounded, yet it moves
+    assert out[:, 0].abs().max() <= 1.0 and out[:, 0].abs().max() == 1.0  # clipped at full lock
+    absolute = BranchedActor(13, [16, 8], squash=squash)
+    absolute.load_state_dict(actor.state_dict(), strict=False)
+    assert torch.allclose(out[:, 1], absolute(x)[:, 1])  # the target speed stays absolute
+    inside = (x[:, -2] + 0.25 * absolute(x)[:, 0]).abs() < 1.0  # where no clip at full lock applies
+    assert inside.sum() > 100
+    assert torch.allclose(change[inside], 0.25 * absolute(x)[inside, 0], atol=1e-6)  # the output is a change
+
+
+def test_integrating_mirror_actor_stays_odd_and_is_refused_by_an_absolute_actor():
+    agent, scale = load("gvf_ddpg", "small")
+    on = dataclasses.replace(scale, mirror_actor=True, steer_increment=0.25)
+    policy = make_policy(agent, on)
+    actor = policy.actor
+    for branch in actor.branches:
+        torch.nn.init.normal_(branch[-1].weight, std=0.3)
+    sign = phi_mirror_sign(10)
+    x = torch.randn(64, 13) * 0.5
+    out, mirrored = actor(x), actor(x * sign)
+    assert torch.allclose(mirrored[:, 0], -out[:, 0], atol=1e-6)
+    assert torch.allclose(mirrored[:, 1], out[:, 1], atol=1e-6)
+    with pytest.raises(RuntimeError, match="steer_increment"):
+        make_policy(agent, dataclasses.replace(on, steer_increment=0.0)).load_state_dict(policy.state_dict())
+    with pytest.raises(ValueError, match="steer_increment"):
+        BranchedActor(13, [16, 8], steer_increment=-0.1)
+
+
 def test_critic_norm_bounds_q_where_the_plain_critic_extrapolates():
     torch.manual_seed(0)
     normed, plain = BranchedCritic(13, [16, 8], norm=True), BranchedCritic(13, [16, 8])

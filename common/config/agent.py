@@ -109,6 +109,10 @@ class ScaleConfig:
     """GVF-DDPG's actor mirror-equivariant by construction (common.networks.BranchedActor's
     mirror_sign): steering odd, target speed even under negating every prediction and the last
     steering; the image baselines are unaffected (their input would need flipped frames)."""
+    steer_increment: float = 0.0
+    """GVF-DDPG's actor outputs a change of the steering: steering = clip(last steering +
+    steer_increment * output, -1, 1) (common.networks.BranchedActor), an integrating controller;
+    0: the paper's absolute steering. The image baselines are unaffected."""
     critic_norm: bool = False
     """A LayerNorm before each hidden ReLU of DDPG's critic (Ball et al. 2023; common.networks.
     BranchedCritic): Q bounded wherever the actor moves the action; False: the paper's plain MLP."""
@@ -199,6 +203,8 @@ def check_scale(scale: ScaleConfig) -> None:
         raise ValueError(f"scale.lr_actor_final must be in (0, 1], got {scale.lr_actor_final}")
     if scale.actor_min_q and not scale.td3:
         raise ValueError("scale.actor_min_q needs scale.td3=true (it takes the smaller of the twin critics)")
+    if not 0.0 <= scale.steer_increment <= 2.0:
+        raise ValueError(f"scale.steer_increment must be in [0, 2], got {scale.steer_increment}")
     if scale.td3_actor_delay < 1:
         raise ValueError(f"scale.td3_actor_delay must be >= 1, got {scale.td3_actor_delay}")
 
