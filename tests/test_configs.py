@@ -66,6 +66,25 @@ def test_bad_learning_values_are_refused_naming_the_field(override, field):
         compose_run(override.split())
 
 
+def finish(cmd: list[str], updates: int) -> None:
+    """What a gvf-train run leaves that the study reads: its progress at the end."""
+    import json
+
+    run_dir = Path(next(c for c in cmd if c.startswith("hydra.run.dir=")).split("=", 1)[1])
+    (run_dir / "progress.json").write_text(json.dumps({"updates": updates}))
+
+
+def test_a_study_job_stopped_before_its_budget_writes_no_summary_so_a_rerun_runs_it(tmp_path, monkeypatch):
+    from actors.evaluation import study
+
+    monkeypatch.setattr(study.subprocess, "run", lambda cmd, **kw: finish(cmd, 900))  # stopped by a SIGTERM: rc 0
+    with pytest.raises(RuntimeError, match="900 updates"):
+        study.run_job("gvf_ddpg", 1, 55, 500, tmp_path / "runs", tmp_path / "work", [], updates=17500)
+    assert not study.summary_path(tmp_path / "runs", "gvf_ddpg", 1).exists()
+    with pytest.raises(RuntimeError, match="stopped early"):  # a wall-clock budget: 15 min not spent
+        study.run_job("gvf_ddpg", 2, 15, 500, tmp_path / "runs", tmp_path / "work", [])
+
+
 def test_a_study_job_whose_summary_exists_is_skipped(tmp_path, monkeypatch):
     from actors.evaluation import study
 
@@ -84,7 +103,9 @@ def test_a_study_job_with_an_update_budget_ends_the_run_there_and_records_it(tmp
     from actors.evaluation import study
 
     ran = []
-    monkeypatch.setattr(study.subprocess, "run", lambda cmd, **kw: ran.append((cmd, kw["timeout"])))
+    monkeypatch.setattr(
+        study.subprocess, "run", lambda cmd, **kw: ran.append((cmd, kw["timeout"])) or finish(cmd, 17800)
+    )
     path = study.run_job("gvf_ddpg", 1, 70, 500, tmp_path / "runs", tmp_path / "work", ["x.y=1"], updates=17800)
     (cmd, timeout), record = ran[0], json.loads(path.read_text())
     assert "learner.max_updates=17800" in cmd and "max_seconds=4200" in cmd and timeout > 4200
@@ -100,8 +121,9 @@ def test_a_rerun_study_job_moves_an_interrupted_attempt_aside_instead_of_mixing_
     stale = tmp_path / "work" / "gvf_ddpg-seed2"
     stale.mkdir(parents=True)
     (stale / "eval.jsonl").write_text(json.dumps({"updates": 500, "mean": {}, "drives": []}) + "\n")
-    monkeypatch.setattr(study.subprocess, "run", lambda cmd, **kw: None)
-    record = json.loads(study.run_job("gvf_ddpg", 2, 15, 500, tmp_path / "runs", tmp_path / "work", []).read_text())
+    monkeypatch.setattr(study.subprocess, "run", lambda cmd, **kw: finish(cmd, 100))
+    path = study.run_job("gvf_ddpg", 2, 15, 500, tmp_path / "runs", tmp_path / "work", [], updates=100)
+    record = json.loads(path.read_text())
     (aside,) = (tmp_path / "work").glob("gvf_ddpg-seed2.interrupted-*")
     assert record["evaluations"] == [] and (aside / "eval.jsonl").exists()  # nothing of the old attempt lost
 

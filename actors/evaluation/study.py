@@ -172,6 +172,18 @@ def run_job(
             env={**os.environ, "OMP_NUM_THREADS": "1"},
             check=True,
         )
+    elapsed = time.time() - start
+    done = (
+        json.loads((run_dir / "progress.json").read_text()).get("updates", 0)
+        if (run_dir / "progress.json").exists()
+        else 0
+    )
+    if (updates > 0 and done < updates) or (updates <= 0 and elapsed < 0.95 * minutes * 60):
+        # a run stopped from outside (SIGTERM ends gvf-train cleanly, rc 0) must not be skipped as finished
+        raise RuntimeError(
+            f"{variant} seed {seed} stopped early: {done} updates in {elapsed / 60:.1f} min (budget: "
+            f"{updates or 'none'} updates, {minutes} min); no summary written, a rerun starts it again"
+        )
     job = {
         "variant": variant,
         "seed": seed,
@@ -179,7 +191,7 @@ def run_job(
         "updates_budget": updates,
         "eval_every": eval_every,
         "overrides": overrides,
-        "wall_minutes": round((time.time() - start) / 60, 2),
+        "wall_minutes": round(elapsed / 60, 2),
     }
     return write_summary(summarize(run_dir, start, job), path)
 
