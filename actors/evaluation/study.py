@@ -6,7 +6,8 @@ every table and figure; checkpoints stay in the scratch folder and are never com
     python -m actors.evaluation.compare docs/results/runs
 
 A job whose summary exists is skipped, so an interrupted study continues where it stopped (the
-interrupted job starts again; its partial folder is moved aside as `<job>.interrupted-<time>`). A
+interrupted job starts again; its partial folder is moved aside as `<job>.interrupted-<time>`; a
+run that ends short of its update budget, or without one of its minutes, writes no summary). A
 summary holds the run's periodic evaluations (minute, updates, test and validation metrics,
 per road: lap, episode length, where the drive ended) and the final policies (the last
 checkpoint and the validation-selected best-policy.pt) driven on the test roads, clean and with
