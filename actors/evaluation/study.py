@@ -76,6 +76,12 @@ def final_drives(path: Path, traces: bool = True) -> dict | None:
     return out
 
 
+def read_progress(run_dir: Path) -> dict:
+    """The learner's progress.json at the end of a run ({} if it wrote none)."""
+    path = run_dir / "progress.json"
+    return json.loads(path.read_text()) if path.exists() else {}
+
+
 def summarize(run_dir: Path, start: float, job: dict) -> dict:
     """The small record of one finished run (module docstring)."""
     evaluations = []
@@ -94,7 +100,7 @@ def summarize(run_dir: Path, start: float, job: dict) -> dict:
                 ],
             }
         )
-    progress = json.loads((run_dir / "progress.json").read_text()) if (run_dir / "progress.json").exists() else {}
+    progress = read_progress(run_dir)
     return {
         **job,
         "progress": progress,
@@ -174,11 +180,7 @@ def run_job(
             check=True,
         )
     elapsed = time.time() - start
-    done = (
-        json.loads((run_dir / "progress.json").read_text()).get("updates", 0)
-        if (run_dir / "progress.json").exists()
-        else 0
-    )
+    done = read_progress(run_dir).get("updates", 0)
     if (updates > 0 and done < updates) or (updates <= 0 and elapsed < 0.95 * minutes * 60):
         # a run stopped from outside (SIGTERM ends gvf-train cleanly, rc 0) must not be skipped as finished
         raise RuntimeError(
