@@ -17,11 +17,13 @@ STEPS = "steps_to_next_obs"  # torchrl's TD(0) estimator raises its gamma to thi
 
 
 def ddpg_reward(nxt: TensorDictBase, scale: ScaleConfig, discount: float, steps: Tensor | None = None) -> Tensor:
-    """The env's reward, less `scale.crash_penalty` where the car left the lane, scaled; with
-    n-step windows (`steps` = m) the penalty is discounted to the window's last step."""
+    """The env's reward, its offset term weighted (`scale.offset_weight`), less `scale.crash_penalty`
+    where the car left the lane, scaled; with n-step windows (`steps` = m) the penalty is
+    discounted to the window's last step."""
     terminated = nxt["terminated"].to(nxt["reward"].dtype)
     weight = 1.0 if steps is None else discount ** (steps.to(terminated.dtype) - 1)
-    return shaped_reward(nxt["reward"], terminated, scale, weight)
+    offset = nxt["speed"] * nxt["alpha"].abs()  # the observed speed is v / v_max
+    return shaped_reward(nxt["reward"], terminated, offset, scale, weight)
 
 
 def with_nstep_next(batch: TensorDictBase, stored: TensorDictBase, replay: ImportanceResamplingReplay) -> None:

@@ -58,6 +58,8 @@ def test_bad_values_are_refused_naming_the_field(override, field):
         ("actor.ou_steer_theta=101", "ou_steer_theta"),
         ("actor.ou_steer_sigma=-1", "ou_steer_sigma"),
         ("scale.steer_increment=-0.1", "steer_increment"),
+        ("scale.offset_weight=0.5", "offset_weight"),
+        ("scale.n_step=3 scale.offset_weight=2", "offset_weight"),
         ("scale.steer_increment=3", "steer_increment"),
     ],
 )
@@ -174,12 +176,18 @@ def test_the_shaped_reward_charges_the_crash_once_and_scales_numpy_and_torch_ali
     from common.config.agent import shaped_reward
 
     scale = compose_run(["scale=small", "scale.crash_penalty=10", "scale.reward_scale=0.1"]).scale
-    reward, terminated = [1.0, 2.0, 3.0], [0.0, 0.0, 1.0]
+    reward, terminated, offset = [1.0, 2.0, 3.0], [0.0, 0.0, 1.0], [0.5, 0.0, 0.0]
     expected = [0.1, 0.2, -0.7]  # (3 - 10) * 0.1 on the step that left the lane only
-    assert np.allclose(shaped_reward(np.array(reward), np.array(terminated), scale), expected)
-    assert torch.allclose(shaped_reward(torch.tensor(reward), torch.tensor(terminated), scale), torch.tensor(expected))
-    halved = shaped_reward(np.array(reward), np.array(terminated), scale, penalty_weight=0.5)
+    assert np.allclose(shaped_reward(np.array(reward), np.array(terminated), np.array(offset), scale), expected)
+    as_tensors = [torch.tensor(x) for x in (reward, terminated, offset)]
+    assert torch.allclose(shaped_reward(*as_tensors, scale), torch.tensor(expected))
+    halved = shaped_reward(np.array(reward), np.array(terminated), np.array(offset), scale, penalty_weight=0.5)
     assert np.allclose(halved, [0.1, 0.2, -0.2])  # an n-step window's penalty, discounted
+    weighted = compose_run(
+        ["scale=small", "scale.crash_penalty=10", "scale.reward_scale=0.1", "scale.offset_weight=3"]
+    ).scale
+    charged = shaped_reward(np.array(reward), np.array(terminated), np.array(offset), weighted)
+    assert np.allclose(charged, [0.0, 0.2, -0.7])  # (1 - 2 * 0.5) * 0.1: the offset charged twice more
 
 
 def test_actor_squash_comes_from_the_scale_unless_the_agent_sets_it():

@@ -1,5 +1,5 @@
 """Options of the combined update beyond the paper (learner/core.py): acting with the target
-actor, reward scale, crash penalty, TD3, the crash memory; each off by default."""
+actor, reward scale, crash penalty, offset weight, TD3, the crash memory; each off by default."""
 
 import copy
 import dataclasses
@@ -68,6 +68,18 @@ def test_crash_penalty_lowers_only_the_reward_of_lane_exits(data, monkeypatch, a
     crashed = base["terminated"]
     assert torch.allclose(penalised["reward"][crashed], base["reward"][crashed] - 0.5 * 2.5)
     assert torch.equal(penalised["reward"][~crashed], base["reward"][~crashed])
+
+
+def test_offset_weight_charges_the_reached_states_offset_as_the_envs_reward_would_at_that_weight(data):
+    from learner.ddpg_batch import ddpg_reward
+
+    nxt = data[:300]["next"]
+    assert (nxt["alpha"].abs() > 0.05).any()  # some off-centre steps to charge
+    for weight in (1.0, 3.0):
+        reward = ddpg_reward(nxt, dataclasses.replace(TINY, offset_weight=weight), discount=0.99)
+        # LaneDrive's reward with the offset term weighted: v/v_max (cos beta - weight |alpha|)
+        expected = nxt["speed"] * (nxt["beta"].cos() - weight * nxt["alpha"].abs())
+        assert torch.allclose(reward, expected, atol=1e-5)
 
 
 def test_td3_option_steps_the_actor_every_second_update_with_twin_critics_and_resumes(data):

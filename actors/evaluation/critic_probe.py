@@ -187,7 +187,9 @@ def measure_checkpoint(path: Path, cfg: RunConfig | None = None, splits=("test",
         drive["terminated"] = drive["metrics"]["lap_completed"] < 1 and n < cfg.env.max_steps
         terminated = np.zeros(n)
         terminated[-1] = drive["terminated"]
-        drive["ddpg_reward"] = shaped_reward(drive["trace"]["reward"], terminated, scale)
+        trace = drive["trace"]
+        offset = trace["speed"] / cfg.env.vehicle.v_max * np.abs(trace["alpha"])
+        drive["ddpg_reward"] = shaped_reward(trace["reward"], terminated, offset, scale)
     laps = sum(int(d["metrics"]["lap_completed"] >= 1) for d in drives)
     discount = step_sizes(agent, scale)["discount"]
     return {

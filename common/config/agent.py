@@ -121,6 +121,9 @@ class ScaleConfig:
     crash_penalty: float = 0.0
     """Subtracted from DDPG's reward (before reward_scale) on a transition that leaves the lane
     (terminated): the cost of a crash in one backup instead of the lost future reward alone; 0: the paper."""
+    offset_weight: float = 1.0
+    """Weight of the lane offset in DDPG's reward: r = v/v_max (cos beta - offset_weight |alpha|)
+    (the env's reward less (offset_weight - 1) v/v_max |alpha| of the reached state); 1: the paper's."""
     n_step: int = 1
     """Steps of reward in DDPG's target before it bootstraps from Q' (learner.nstep; at most to
     the end of the actor's chunk); 1: the paper's one-step target. The GVFs stay one-step."""
@@ -169,11 +172,13 @@ def actor_squash(agent: AgentConfig, scale: ScaleConfig) -> str:
     return value
 
 
-def shaped_reward(reward, terminated, scale: ScaleConfig, penalty_weight=1.0):
-    """DDPG's reward from the env's: less `scale.crash_penalty` (times `penalty_weight`) where
-    `terminated`, times `scale.reward_scale`; numpy arrays or tensors alike, so the learner and the
-    evaluation tools (which may not import the learner) form it once."""
-    return (reward - scale.crash_penalty * penalty_weight * terminated) * scale.reward_scale
+def shaped_reward(reward, terminated, offset, scale: ScaleConfig, penalty_weight=1.0):
+    """DDPG's reward from the env's: less (`scale.offset_weight` - 1) times `offset` (v/v_max |alpha|
+    of the reached state), less `scale.crash_penalty` (times `penalty_weight`) where `terminated`,
+    times `scale.reward_scale`; numpy arrays or tensors alike, so the learner and the evaluation
+    tools (which may not import the learner) form it once."""
+    extra = (scale.offset_weight - 1.0) * offset
+    return (reward - extra - scale.crash_penalty * penalty_weight * terminated) * scale.reward_scale
 
 
 TERMINALS = ("absorbing", "zero")  # learner.gvf.td_target
@@ -189,6 +194,10 @@ def check_scale(scale: ScaleConfig) -> None:
         raise ValueError(f"scale.crash_penalty must be >= 0, got {scale.crash_penalty}")
     if scale.n_step < 1:
         raise ValueError(f"scale.n_step must be >= 1, got {scale.n_step}")
+    if not scale.offset_weight >= 1.0:
+        raise ValueError(f"scale.offset_weight must be >= 1, got {scale.offset_weight}")
+    if scale.n_step > 1 and scale.offset_weight != 1.0:
+        raise ValueError("scale.n_step > 1 needs scale.offset_weight=1 (the n-step reward is the env's sum)")
     if scale.n_step > 1 and scale.crash_memory:
         raise ValueError("scale.n_step > 1 needs scale.crash_memory=0 (the crash memory keeps no bootstrap states)")
     if not 0.0 <= scale.policy_average < 1.0:
