@@ -10,6 +10,7 @@ reward r = v/v_max * (cos beta - |alpha|), termination when |alpha| > 1.
 
 from __future__ import annotations
 
+import copy
 import math
 import zlib
 from functools import lru_cache
@@ -69,6 +70,17 @@ class LaneDriveSim:
         self.maps: list[RoadMap] = [None] * n  # type: ignore[list-item]
         self.ahead: list[np.ndarray] = [None] * n  # type: ignore[list-item]
         self.path: list[list[tuple[float, float]]] = [[] for _ in range(n)]
+
+    def branch(self) -> "LaneDriveSim":
+        """A copy whose cars go on independently of this one's (the roads, maps and camera shared,
+        read-only): what-if drives from the same states (actors.evaluation.steer_probe)."""
+        other = copy.copy(self)
+        for name, value in vars(self).items():
+            if isinstance(value, np.ndarray):
+                setattr(other, name, value.copy())
+        other.tracks, other.maps, other.ahead = list(self.tracks), list(self.maps), list(self.ahead)
+        other.path = [list(p) for p in self.path]
+        return other
 
     # -- episodes -----------------------------------------------------------------------
     def _choose_track(self, rng: np.random.Generator, options: dict) -> str:

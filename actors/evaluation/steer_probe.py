@@ -1,0 +1,195 @@
+"""Does steering towards the lane's centre pay under the policy itself, where its critic says so?
+
+A checkpoint's policy drives the test laps without noise. Every `every` steps, at each car off the
+centre (|alpha| >= OFF_CENTRE) and still on its lap, the simulator is branched twice
+(`LaneDriveSim.branch`): one step with the policy's steering moved `eps` towards the centre, one
+with it moved `eps` away; then the policy drives both branches on for `horizon` steps. Half the
+difference of the two discounted returns over `eps` (DDPG's reward of the checkpoint: crash
+penalty, offset weight) is the true slope of Q^pi along the steering, by central differences on
+a deterministic simulator; the critic's dQ/d(steering) at the same state and action is the slope
+the actor climbs. Both are signed so that positive is "towards the centre".
+
+If the true slope points to the centre where the critic's does not, the critic keeps the offset;
+if the true slope itself does not, one step towards the centre does not pay under this policy (it
+drives back to its offset), and no local step of DDPG's actor can find the centre.
+
+    python -m actors.evaluation.steer_probe runs/offset-3-ym --last 1 --out docs/results/steer-probe.md
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Callable
+
+import numpy as np
+import torch
+
+from actors.envs.sim import LaneDriveSim
+from actors.evaluation.critic_probe import load_critic
+from actors.evaluation.main import eval_env_kwargs
+from actors.evaluation.policies import known_config
+from actors.evaluation.road_gap import checkpoint_tool, roads
+from common import checkpoint
+from common.config.agent import AgentConfig, ScaleConfig, shaped_reward, step_sizes
+from common.config.env import OFF_CENTRE, EnvConfig
+from common.config.run import RunConfig
+from common.networks import phi
+
+# act(sim) -> (features for the critic, actions (n, 2) in [-1, 1]); slope(features, actions) -> (n,) dQ/dsteer
+ActFn = Callable[[LaneDriveSim], tuple[object, np.ndarray]]
+SlopeFn = Callable[[object, np.ndarray], np.ndarray]
+
+
+def branch_returns(sim: LaneDriveSim, act: ActFn, first: np.ndarray, reward: Callable, horizon: int, discount: float):
+    """Discounted return of each car over `horizon` steps of a branch of `sim` that starts with
+    the actions `first` and then follows `act`; a car's return stops at its episode's end."""
+    b = sim.branch()
+    g, alive, weight, actions = np.zeros(sim.n), np.ones(sim.n, bool), 1.0, first
+    for _ in range(horizon):
+        terminated, truncated = b.step(actions)
+        g += alive * weight * reward(b, terminated)
+        alive &= ~(terminated | truncated)
+        weight *= discount
+        if not alive.any():
+            break
+        actions = act(b)[1]
+    return g
+
+
+def probe_drives(
+    sim: LaneDriveSim,
+    act: ActFn,
+    slope: SlopeFn,
+    reward: Callable,
+    discount: float,
+    every: int = 40,
+    horizon: int = 300,
+    eps: float = 0.1,
+    min_offset: float = OFF_CENTRE,
+) -> np.ndarray:
+    """Drive every car of `sim` (already reset) to its lap's or episode's end; rows (alpha, true
+    slope, critic's slope) at the probed off-centre states, slopes signed towards the centre."""
+    running, rows, step = np.ones(sim.n, bool), [], 0
+    while running.any():
+        features, actions = act(sim)
+        off = running & (np.abs(sim.alpha) >= min_offset)
+        if step % every == 0 and off.any():
+            towards = -np.sign(sim.alpha)  # steering left (+) moves alpha up
+            shifted = [actions.copy(), actions.copy()]
+            for sign, a in zip((1.0, -1.0), shifted):
+                a[:, 0] = np.clip(a[:, 0] + sign * eps * towards * off, -1.0, 1.0)
+            g_to, g_away = (branch_returns(sim, act, a, reward, horizon, discount) for a in shifted)
+            critic = towards * slope(features, actions)
+            for i in np.flatnonzero(off):
+                rows.append((sim.alpha[i], (g_to[i] - g_away[i]) / (2 * eps), critic[i]))
+        terminated, truncated = sim.step(actions)
+        lapped = np.array([sim.info(i)["lap_completed"] for i in range(sim.n)], bool)
+        running &= ~(terminated | truncated | lapped)
+        step += 1
+    return np.asarray(rows, np.float64).reshape(-1, 3)
+
+
+def summarise(rows: np.ndarray) -> dict:
+    """Shares of the probed states where each slope points to the centre, and where they agree."""
+    if not len(rows):
+        return {"states": 0}
+    true, critic = rows[:, 1], rows[:, 2]
+    pays = true > 0
+    return {
+        "states": len(rows),
+        "mean_abs_alpha": float(np.abs(rows[:, 0]).mean()),
+        "true_to_centre": float(pays.mean()),
+        "critic_to_centre": float((critic > 0).mean()),
+        "agree": float(((critic > 0) == pays).mean()),
+        "critic_where_it_pays": float((critic[pays] > 0).mean()) if pays.any() else None,
+        "true_slope_median": float(np.median(true)),
+        "critic_slope_median": float(np.median(critic)),
+    }
+
+
+def network_act(policy: torch.nn.Module) -> ActFn:
+    """The predictive policy's phi(s) and action at every car of a sim."""
+
+    @torch.no_grad()
+    def act(sim: LaneDriveSim):
+        obs = sim.observation()
+        image, speed, last = (torch.from_numpy(np.asarray(obs[k])) for k in ("image", "speed", "last_action"))
+        x = phi(policy.gvf(image, speed, last), speed, last)
+        return x, policy.actor(x).clamp(-1.0, 1.0).numpy()
+
+    return act
+
+
+def critic_slope(critic: torch.nn.Module) -> SlopeFn:
+    """dQ/d(steering) of `critic` at (phi, action)."""
+
+    def slope(x: torch.Tensor, actions: np.ndarray) -> np.ndarray:
+        a = torch.from_numpy(actions).requires_grad_(True)
+        (grad,) = torch.autograd.grad(critic(x, a).sum(), a)
+        return grad[:, 0].numpy()
+
+    return slope
+
+
+def ddpg_reward(scale: ScaleConfig, v_max: float):
+    """DDPG's reward of a branch's last step, as the learner formed it (`shaped_reward`)."""
+    return lambda sim, terminated: shaped_reward(
+        sim.reward, terminated.astype(float), sim.v / v_max * np.abs(sim.alpha), scale
+    )
+
+
+def measure_checkpoint(path: Path, cfg: RunConfig | None = None, **probe_kwargs) -> dict:
+    state = checkpoint.load(checkpoint.find(path))
+    agent, scale = known_config(AgentConfig, state["agent"]), known_config(ScaleConfig, state["scale"])
+    if agent.representation != "predictive":
+        raise SystemExit(f"{path}: the probe reads phi(s); {agent.name} has no predictive representation")
+    cfg = cfg or RunConfig()
+    policy, critic = load_critic(state, agent, scale)
+    env = EnvConfig.from_kwargs(lighting=False, **eval_env_kwargs(cfg))
+    drives = [(name, d) for name in roads(cfg)["test"] for d in cfg.eval.directions]
+    sim = LaneDriveSim(env, len(drives))
+    rng = np.random.default_rng(0)
+    for i, (name, d) in enumerate(drives):
+        sim.reset(i, rng, {"track": name, "direction": d, "random_start": False})
+    discount = step_sizes(agent, scale)["discount"]
+    reward = ddpg_reward(scale, env.vehicle.v_max)
+    rows = probe_drives(sim, network_act(policy), critic_slope(critic), reward, discount, **probe_kwargs)
+    return {"agent": agent.name, "updates": state["core"]["updates"], **summarise(rows)}
+
+
+def report(measured: dict[str, dict]) -> list[str]:
+    def cell(m: dict, key: str, fmt: str) -> str:
+        return "-" if m.get(key) is None else format(m[key], fmt)
+
+    lines = [
+        f"Off-centre test-lap states (|alpha| >= {OFF_CENTRE}), every 40 steps; slopes of Q along the "
+        "steering, positive towards the centre: true (Q^pi by central differences, eps 0.1, 300 steps) "
+        "and the critic's.",
+        "",
+        "| checkpoint | updates | states | mean abs(alpha) | true slope to the centre | critic's to the centre "
+        "| agree | critic's where it pays | median true slope | median critic's |",
+        "|" + " --- |" * 10,
+    ]
+    for path, m in measured.items():
+        lines.append(
+            f"| {path} | {m['updates']} | {m['states']} | {cell(m, 'mean_abs_alpha', '.2f')} "
+            f"| {cell(m, 'true_to_centre', '.2f')} | {cell(m, 'critic_to_centre', '.2f')} | {cell(m, 'agree', '.2f')} "
+            f"| {cell(m, 'critic_where_it_pays', '.2f')} | {cell(m, 'true_slope_median', '+.2f')} "
+            f"| {cell(m, 'critic_slope_median', '+.2f')} |"
+        )
+    return lines
+
+
+def main(argv: list[str] | None = None) -> None:
+    checkpoint_tool(
+        argv,
+        __doc__,
+        "actors.evaluation.steer_probe",
+        measure_checkpoint,
+        report,
+        "Does steering to the centre pay, and does the critic say so?",
+    )
+
+
+if __name__ == "__main__":
+    main()
