@@ -93,6 +93,11 @@ def train_offline(run: RunConfig, out_dir: str | Path, show_progress: bool = Tru
     o, agent, scale = run.offline, run.agent, run.scale
     out_dir = Path(out_dir)
     ckpt_dir = Path(o.checkpoint_dir) if Path(o.checkpoint_dir).is_absolute() else out_dir / o.checkpoint_dir
+    for name, paper in (("offset_weight", 1.0), ("crash_penalty", 0.0)):  # BCQ's reward is the dataset's, scaled
+        if getattr(scale, name) != paper:
+            raise ValueError(
+                f"scale.{name}={getattr(scale, name)} is not applied offline (BCQ keeps the logged reward)"
+            )
     dataset = Dataset.open(o.dataset)
     if agent.representation != "predictive" and o.method == "gvf_bcq":
         raise ValueError(f"offline.method=gvf_bcq needs a GVF agent (agent=gvf_ddpg), got {agent.name!r}")

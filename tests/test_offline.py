@@ -150,3 +150,14 @@ def test_bcq_minibatches_mirror_the_asked_fraction_phi_from_the_flipped_frames(c
     images_all = BCQBatches.images(dataset, 256, 1.0, seed=2, mirror=1.0).sample()
     assert torch.equal(images_all["action"][:, 0], -images["action"][:, 0])
     assert torch.equal(images_all["next", "reward"], images["next", "reward"])
+
+
+@pytest.mark.parametrize("override", ["scale.offset_weight=2", "scale.crash_penalty=10"])
+def test_gvf_offline_refuses_reward_shaping_it_would_not_apply(override, tmp_path):
+    from learner.offline_main import train_offline
+    from tests.helpers import compose_run
+
+    run = compose_run(["scale=small", override, f"offline.dataset={tmp_path / 'never-opened'}"])
+    with pytest.raises(ValueError, match=override.split("=")[0]):
+        train_offline(run, tmp_path)
+    assert not any(tmp_path.iterdir())  # refused before anything was written

@@ -1,12 +1,16 @@
 """The steering probe (actors/evaluation/steer_probe.py): branches of the simulator drive on
 independently, and the true slope of a controller that holds an offset points to the centre."""
 
+import dataclasses
+
 import numpy as np
+import pytest
 
 from actors.controllers.kinematic import KinematicController
 from actors.envs.sim import LaneDriveSim
-from actors.evaluation.steer_probe import probe_drives, summarise
+from actors.evaluation.steer_probe import ddpg_reward, probe_drives, summarise
 from common.config.env import EnvConfig
+from tests.core_fixtures import TINY
 
 
 def sim_on(track: str, directions=("ccw", "cw")) -> LaneDriveSim:
@@ -59,7 +63,7 @@ def test_steering_to_the_centre_pays_for_a_controller_that_holds_an_offset_and_t
     assert m["states"] >= 10 and m["mean_abs_alpha"] >= 0.1
     assert (rows[:, 0] > 0).all()  # pushed left, the car holds its offset left of the centre
     assert m["true_to_centre"] >= 0.9  # a nudge to the centre pays while the controller drifts back
-    assert m["critic_to_centre"] == 0.0 and m["agree"] == 1.0 - m["true_to_centre"]
+    assert m["critic_to_centre"] == 0.0 and m["agree"] == pytest.approx(1.0 - m["true_to_centre"])
     assert m["true_slope_median"] > 0 and m["critic_slope_median"] == -1.0  # more left is away
 
 
@@ -67,3 +71,23 @@ def test_no_off_centre_state_no_rows():
     reward = lambda sim, terminated: sim.reward  # noqa: E731
     rows = probe_drives(sim_on("dune", ("ccw",)), biased_controller(0.0), None, reward, 0.99, every=60, min_offset=0.9)
     assert rows.shape == (0, 3) and summarise(rows) == {"states": 0}
+
+
+def test_the_probes_reward_is_the_envs_with_the_offset_weighted_and_the_crash_charged():
+    sim = sim_on("dune")
+    for _ in range(20):
+        terminated, _ = sim.step(np.array([[0.4, 1.0], [0.0, 1.0]]))
+    assert abs(sim.alpha[0]) > 0.05  # off the centre: the offset term matters
+    paper = ddpg_reward(TINY, sim.cfg.vehicle.v_max)
+    assert np.allclose(paper(sim, terminated), sim.reward)
+    weighted = ddpg_reward(dataclasses.replace(TINY, offset_weight=3.0, crash_penalty=5.0), sim.cfg.vehicle.v_max)
+    # LaneDrive's reward with the offset term weighted: v/v_max (cos beta - 3 |alpha|), less 5 on a lane exit
+    expected = sim.v / sim.cfg.vehicle.v_max * (np.cos(sim.beta) - 3 * np.abs(sim.alpha))
+    assert np.allclose(weighted(sim, np.array([False, True])), expected - [0.0, 5.0])
+
+
+def test_a_branch_shares_only_what_never_changes():
+    sim = sim_on("dune")
+    b = sim.branch()
+    shared = {name for name, value in vars(sim).items() if getattr(b, name) is value}
+    assert shared <= {"cfg", "n", "camera", "half"}  # every mutable piece of state is the branch's own

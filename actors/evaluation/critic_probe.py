@@ -5,7 +5,7 @@ step its own critic (the first of TD3's twins: the one the actor climbs) is read
 the policy's action and with the target speed swept over its range, the steering kept:
 
 - `q_minus_return`: Q1(s, pi(s)) less the discounted return the drive then collected (DDPG's
-  reward: crash penalty and reward scale applied). At steps before a crash a critic that charges
+  reward: crash penalty, offset weight and reward scale applied). At steps before a crash a critic that charges
   the crash comes out near 0; a large positive gap is a critic that did not see it coming.
 - `preferred_speed`: the target speed (m/s) where Q1 peaks along the sweep, less the policy's.
   Negative before a crash: the critic already wanted to slow down and the actor did not follow.

@@ -6,8 +6,10 @@ centre (|alpha| >= OFF_CENTRE) and still on its lap, the simulator is branched t
 with it moved `eps` away; then the policy drives both branches on for `horizon` steps. Half the
 difference of the two discounted returns over `eps` (DDPG's reward of the checkpoint: crash
 penalty, offset weight) is the true slope of Q^pi along the steering, by central differences on
-a deterministic simulator; the critic's dQ/d(steering) at the same state and action is the slope
-the actor climbs. Both are signed so that positive is "towards the centre".
+a deterministic simulator (the nudge clipped at the steering's bounds, the difference is over the
+steering actually moved); the critic's dQ/d(steering) at the same state and action is the slope
+the actor climbs (where its output is not held at a bound by the clip). Both are signed so that
+positive is "towards the centre".
 
 If the true slope points to the centre where the critic's does not, the critic keeps the offset;
 if the true slope itself does not, one step towards the centre does not pay under this policy (it
@@ -18,6 +20,7 @@ drives back to its offset), and no local step of DDPG's actor can find the centr
 
 from __future__ import annotations
 
+import json
 from pathlib import Path
 from typing import Callable
 
@@ -42,13 +45,13 @@ SlopeFn = Callable[[object, np.ndarray], np.ndarray]
 
 def branch_returns(sim: LaneDriveSim, act: ActFn, first: np.ndarray, reward: Callable, horizon: int, discount: float):
     """Discounted return of each car over `horizon` steps of a branch of `sim` that starts with
-    the actions `first` and then follows `act`; a car's return stops at its episode's end."""
+    the actions `first` and then follows `act`; a car's return stops where it leaves the lane."""
     b = sim.branch()
     g, alive, weight, actions = np.zeros(sim.n), np.ones(sim.n, bool), 1.0, first
     for _ in range(horizon):
-        terminated, truncated = b.step(actions)
+        terminated, _ = b.step(actions)  # the learner bootstraps through the time limit: Q^pi has none
         g += alive * weight * reward(b, terminated)
-        alive &= ~(terminated | truncated)
+        alive &= ~terminated
         weight *= discount
         if not alive.any():
             break
@@ -80,8 +83,9 @@ def probe_drives(
                 a[:, 0] = np.clip(a[:, 0] + sign * eps * towards * off, -1.0, 1.0)
             g_to, g_away = (branch_returns(sim, act, a, reward, horizon, discount) for a in shifted)
             critic = towards * slope(features, actions)
-            for i in np.flatnonzero(off):
-                rows.append((sim.alpha[i], (g_to[i] - g_away[i]) / (2 * eps), critic[i]))
+            moved = towards * (shifted[0][:, 0] - shifted[1][:, 0])  # less than 2 eps where clipped at a bound
+            for i in np.flatnonzero(off & (moved > 0)):
+                rows.append((sim.alpha[i], (g_to[i] - g_away[i]) / moved[i], critic[i]))
         terminated, truncated = sim.step(actions)
         lapped = np.array([sim.info(i)["lap_completed"] for i in range(sim.n)], bool)
         running &= ~(terminated | truncated | lapped)
@@ -154,17 +158,19 @@ def measure_checkpoint(path: Path, cfg: RunConfig | None = None, **probe_kwargs)
     discount = step_sizes(agent, scale)["discount"]
     reward = ddpg_reward(scale, env.vehicle.v_max)
     rows = probe_drives(sim, network_act(policy), critic_slope(critic), reward, discount, **probe_kwargs)
-    return {"agent": agent.name, "updates": state["core"]["updates"], **summarise(rows)}
+    settings = {"every": 40, "horizon": 300, "eps": 0.1, **probe_kwargs}
+    return {"agent": agent.name, "updates": state["core"]["updates"], "probe": settings, **summarise(rows)}
 
 
 def report(measured: dict[str, dict]) -> list[str]:
     def cell(m: dict, key: str, fmt: str) -> str:
         return "-" if m.get(key) is None else format(m[key], fmt)
 
+    settings = sorted({json.dumps(m.get("probe"), sort_keys=True) for m in measured.values()})
     lines = [
-        f"Off-centre test-lap states (|alpha| >= {OFF_CENTRE}), every 40 steps; slopes of Q along the "
-        "steering, positive towards the centre: true (Q^pi by central differences, eps 0.1, 300 steps) "
-        "and the critic's.",
+        f"Off-centre test-lap states (|alpha| >= {OFF_CENTRE}); slopes of Q along the steering, positive "
+        "towards the centre: true (Q^pi by central differences of the steering nudged eps each way, the "
+        f"policy driving `horizon` steps on) and the critic's. Probe settings: {', '.join(settings)}.",
         "",
         "| checkpoint | updates | states | mean abs(alpha) | true slope to the centre | critic's to the centre "
         "| agree | critic's where it pays | median true slope | median critic's |",

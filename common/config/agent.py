@@ -123,7 +123,8 @@ class ScaleConfig:
     (terminated): the cost of a crash in one backup instead of the lost future reward alone; 0: the paper."""
     offset_weight: float = 1.0
     """Weight of the lane offset in DDPG's reward: r = v/v_max (cos beta - offset_weight |alpha|)
-    (the env's reward less (offset_weight - 1) v/v_max |alpha| of the reached state); 1: the paper's."""
+    (the env's reward less (offset_weight - 1) v/v_max |alpha| of the reached state, v/v_max the
+    observed speed, which TORCS clips to [0, 1]); online only (gvf-offline refuses it); 1: the paper's."""
     n_step: int = 1
     """Steps of reward in DDPG's target before it bootstraps from Q' (learner.nstep; at most to
     the end of the actor's chunk); 1: the paper's one-step target. The GVFs stay one-step."""
