@@ -70,6 +70,15 @@ def load_critic(state: dict, agent: AgentConfig, scale: ScaleConfig):
     return nets.policy.eval(), nets.critic.eval()
 
 
+def load_probed(path: Path):
+    """A predictive checkpoint's (state, agent, scale, acting policy, critic); others are refused."""
+    state = checkpoint.load(checkpoint.find(path))
+    agent, scale = known_config(AgentConfig, state["agent"]), known_config(ScaleConfig, state["scale"])
+    if agent.representation != "predictive":
+        raise SystemExit(f"{path}: the probe reads phi(s); {agent.name} has no predictive representation")
+    return (state, agent, scale, *load_critic(state, agent, scale))
+
+
 def recording_policy(policy: torch.nn.Module, record: list):
     """A PolicyFn of the predictive `policy` that appends each step's (phi, action, phi of the
     mirrored observation) to `record`: the frames flipped left-right and the last steering negated,
@@ -165,12 +174,8 @@ def summarise(
 
 
 def measure_checkpoint(path: Path, cfg: RunConfig | None = None, splits=("test", "validation")) -> dict:
-    state = checkpoint.load(checkpoint.find(path))
-    agent, scale = known_config(AgentConfig, state["agent"]), known_config(ScaleConfig, state["scale"])
-    if agent.representation != "predictive":
-        raise SystemExit(f"{path}: the probe reads phi(s); {agent.name} has no predictive representation")
+    state, agent, scale, policy, critic = load_probed(path)
     cfg = cfg or RunConfig()
-    policy, critic = load_critic(state, agent, scale)
     names = [n for s in splits for n in roads(cfg)[s]]
     record: list = []
     drives = evaluate(

@@ -28,12 +28,10 @@ import numpy as np
 import torch
 
 from actors.envs.sim import LaneDriveSim
-from actors.evaluation.critic_probe import load_critic
+from actors.evaluation.critic_probe import load_probed
 from actors.evaluation.main import eval_env_kwargs
-from actors.evaluation.policies import known_config
 from actors.evaluation.road_gap import checkpoint_tool, roads
-from common import checkpoint
-from common.config.agent import AgentConfig, ScaleConfig, shaped_reward, step_sizes
+from common.config.agent import ScaleConfig, shaped_reward, step_sizes
 from common.config.env import OFF_CENTRE, EnvConfig
 from common.config.run import RunConfig
 from common.networks import phi
@@ -143,12 +141,8 @@ def ddpg_reward(scale: ScaleConfig, v_max: float):
 
 
 def measure_checkpoint(path: Path, cfg: RunConfig | None = None, **probe_kwargs) -> dict:
-    state = checkpoint.load(checkpoint.find(path))
-    agent, scale = known_config(AgentConfig, state["agent"]), known_config(ScaleConfig, state["scale"])
-    if agent.representation != "predictive":
-        raise SystemExit(f"{path}: the probe reads phi(s); {agent.name} has no predictive representation")
+    state, agent, scale, policy, critic = load_probed(path)
     cfg = cfg or RunConfig()
-    policy, critic = load_critic(state, agent, scale)
     env = EnvConfig.from_kwargs(lighting=False, **eval_env_kwargs(cfg))
     drives = [(name, d) for name in roads(cfg)["test"] for d in cfg.eval.directions]
     sim = LaneDriveSim(env, len(drives))
