@@ -111,13 +111,13 @@ class LearningCore:
             lr_actor_decay_updates=scale.lr_actor_decay_updates,
             lr_actor_final=scale.lr_actor_final,
             actor_min_q=scale.actor_min_q,
+            actor_on_crash_memory=scale.crash_memory_actor,
         )
         self.updates = 0
         self.warm = False  # g trained on the warm-up data and every rho recomputed
         self.held_out: TensorDictBase | None = None
         self.insert_rho = InsertRho(agent, self.nets.behaviour) if self.predictive else None
-        self.skipped_nonfinite = 0
-        """Updates skipped because their loss or a gradient was not finite."""
+        self.skipped_nonfinite = 0  # updates whose loss or a gradient was not finite: skipped
         self.average = PolicyAverage(self.nets.policy, scale.policy_average) if scale.policy_average else None
         bounded = self.predictive and agent.gvf_bootstrap_bound  # learner.gvf.ReturnBound
         self.bound = ReturnBound(len(agent.cumulants), self.device) if bounded else None

@@ -21,6 +21,11 @@ twin critics' values, as SAC does, instead of TD3's first critic: where the two 
 data, e.g. at target speeds the replay has no crash for) the actor is not pulled towards the more
 optimistic one.
 
+`actor_on_crash_memory=False` (an option, on by default: the actor climbs Q on every item) leaves
+the crash memory's items (`learner.replay.FROM_CRASHES`) out of the actor's loss: the critic
+learns the crashes' cost from them, while the actor improves at the states its policy reaches,
+not at copies of old pre-crash states whose steep Q gradients would steer every state.
+
 `lr_actor_decay_updates` (an option, 0 by default) lowers the actor's step size linearly to
 `lr_actor_final` of it over that many updates, so that a policy found early moves less later.
 """
@@ -35,6 +40,8 @@ from tensordict import TensorDictBase
 from tensordict.nn import TensorDictModule
 from torch import Tensor, nn
 from torchrl.objectives import DDPGLoss, SoftUpdate, TD3Loss, ValueEstimators
+
+from learner.replay import FROM_CRASHES
 
 
 class DDPG:
@@ -58,11 +65,12 @@ class DDPG:
         lr_actor_decay_updates: int = 0,
         lr_actor_final: float = 0.1,
         actor_min_q: bool = False,
+        actor_on_crash_memory: bool = True,
     ):
         if actor_min_q and not td3:
             raise ValueError("actor_min_q needs td3 (twin critics)")
         self.actor, self.critic = actor, critic
-        self.actor_min_q = actor_min_q
+        self.actor_min_q, self.actor_on_crash_memory = actor_min_q, actor_on_crash_memory
         self.td3, self.actor_delay, self.steps = td3, actor_delay, 0
         actor_module = TensorDictModule(actor, in_keys=list(actor_in_keys), out_keys=["action"])
         self.actor_module = actor_module
@@ -110,9 +118,19 @@ class DDPG:
         if self.td3:  # one naming for both losses' outputs
             out["loss_value"] = out["loss_qvalue"]
             out["pred_value"] = out["pred_value"].reshape(2, -1)[0]
+        acted = self.actor_batch(batch)
         if self.actor_min_q:
-            out["loss_actor"] = self.pessimistic_actor_loss(batch)
+            out["loss_actor"] = self.pessimistic_actor_loss(acted)
+        elif acted is not batch:
+            loss = self.loss_module.actor_loss if self.td3 else self.loss_module.loss_actor
+            out["loss_actor"] = loss(acted)[0]
         return out["loss_actor"] + out["loss_value"], out
+
+    def actor_batch(self, batch: TensorDictBase) -> TensorDictBase:
+        """The items the actor's loss averages over: all, or those not from the crash memory."""
+        if self.actor_on_crash_memory or FROM_CRASHES not in batch.keys():
+            return batch
+        return batch[~batch[FROM_CRASHES]]
 
     def pessimistic_actor_loss(self, batch: TensorDictBase) -> Tensor:
         """-min(Q1, Q2)(s, pi(s)), the critics' parameters detached.

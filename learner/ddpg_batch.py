@@ -11,7 +11,7 @@ from torch import Tensor, nn
 
 from common.config.agent import ScaleConfig, shaped_reward
 from common.networks import phi
-from learner.replay import ImportanceResamplingReplay, expand
+from learner.replay import FROM_CRASHES, ImportanceResamplingReplay, expand
 
 STEPS = "steps_to_next_obs"  # torchrl's TD(0) estimator raises its gamma to this (learner.nstep)
 
@@ -56,8 +56,9 @@ def phi_batch(gvf: nn.Module, uniform: TensorDictBase, reward: Tensor) -> Tensor
         },
         batch_size=[uniform.shape[0]],
     )
-    if STEPS in uniform.keys():
-        batch[STEPS] = uniform[STEPS]
+    for key in (STEPS, FROM_CRASHES):
+        if key in uniform.keys():
+            batch[key] = uniform[key]
     return batch
 
 

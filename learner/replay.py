@@ -18,8 +18,9 @@ copies of the last steps before each termination: the main ring evicts them afte
 experience at the small scale, and the policy's speed crept back up once the crashes it caused
 had left. DDPG and the discriminator draw their uniform minibatch from both buffers together
 (`sample_uniform_with`), each item equally likely, so a crash lives as long as the crash memory
-keeps it; the GVFs' sampling by rho (eq. 5) sees the main buffer only. Off by default: with it
-the swings remained (docs/results.md).
+keeps it; the GVFs' sampling by rho (eq. 5) sees the main buffer only; the items it gave are
+marked (`FROM_CRASHES`) so that the actor can leave them out (`scale.crash_memory_actor`). Off by
+default: with it the swings remained (docs/results.md).
 
 The storage layout of a LaneDrive transition is compact: the next observation's previous
 frame is the current frame and its last action is the action, so only the new frame is
@@ -43,6 +44,7 @@ from torchrl.data import LazyTensorStorage, PrioritizedSampler, TensorDictReplay
 
 from learner.nstep import NSTEP_KEYS
 
+FROM_CRASHES = "from_crash_memory"  # (B,) bool of a uniform minibatch: the item is a crash memory's copy
 PRIORITY_EPS = 1e-8
 
 
@@ -170,7 +172,9 @@ def sample_uniform_with(replay: ImportanceResamplingReplay, crashes: CrashMemory
     from_crashes = index >= len(replay)
     main = replay.buffer.storage.get(index[~from_crashes])
     extra = crashes.buffer.storage.get(index[from_crashes] - len(replay))
-    return torch.cat([main, extra], 0)
+    batch = torch.cat([main, extra], 0)
+    batch[FROM_CRASHES] = torch.arange(n) >= main.shape[0]
+    return batch
 
 
 def _check_consecutive(index: Tensor, capacity: int) -> None:
@@ -224,6 +228,7 @@ def expand(stored: TensorDictBase) -> TensorDict:
     """Back to torchrl's convention: the next image is [new frame, frame t]."""
     done = stored["terminated"] | stored["truncated"]
     image = stored["image"].view(torch.uint8)
+    marked = {FROM_CRASHES: stored[FROM_CRASHES]} if FROM_CRASHES in stored.keys() else {}
     return TensorDict(
         {
             "image": image,
@@ -243,6 +248,7 @@ def expand(stored: TensorDictBase) -> TensorDict:
                 "truncated": stored["truncated"],
                 "done": done,
             },
+            **marked,
         },
         batch_size=stored.batch_size,
     )

@@ -46,6 +46,7 @@ def test_bad_values_are_refused_naming_the_field(override, field):
         ("scale.lr_actor_decay_updates=-1", "lr_actor_decay_updates"),
         ("scale.lr_actor_final=0", "lr_actor_final"),
         ("scale.crash_steps=0", "crash_steps"),
+        ("scale.crash_memory_actor=false", "crash_memory_actor"),
         ("scale=paper scale.actor_min_q=true", "actor_min_q"),
         ("learner.rho_at=router", "rho_at"),
         ("learner.weights_dtype=int8", "weights_dtype"),

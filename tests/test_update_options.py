@@ -1,5 +1,6 @@
 """Options of the combined update beyond the paper (learner/core.py): acting with the target
-actor, reward scale, crash penalty, offset weight, TD3, the crash memory; each off by default."""
+actor, reward scale, crash penalty, offset weight, TD3, the crash memory (and leaving it out of the
+actor's loss); each off by default."""
 
 import copy
 import dataclasses
@@ -9,6 +10,8 @@ import torch
 
 from common.config.agent import AgentConfig
 from learner.core import LearningCore
+from learner.ddpg_batch import phi_batch
+from learner.replay import FROM_CRASHES
 from tests.core_fixtures import TINY, lanedrive_data
 
 
@@ -123,3 +126,36 @@ def test_the_crash_memory_feeds_the_uniform_batch_after_the_replay_evicted_its_c
     resumed.load_state_dict(state)
     assert len(resumed.crashes) == 1
     assert LearningCore(AgentConfig(name="gvf_ddpg"), TINY).crashes is None  # 0: the paper's single replay
+
+
+@pytest.mark.parametrize("td3", [False, True])
+def test_without_the_crash_memory_in_the_actor_its_items_train_the_critic_and_not_the_actor(data, td3):
+    scale = dataclasses.replace(TINY, crash_memory=40, crash_memory_actor=False, td3=td3)
+    core = LearningCore(AgentConfig(name="gvf_ddpg", metrics_every=1), scale, seed=0)
+    crash = data[:30].clone()
+    crash["next", "reward"] = torch.full((30, 1), -7.0)  # marks the crash memory's copies
+    core.add(data[30:330])
+    core.add_crashes(crash)
+    uniform = core._uniform()
+    marked = uniform[FROM_CRASHES]
+    assert torch.equal(marked, uniform["next", "reward"].reshape(-1) == -7.0) and marked.any()
+    batch = phi_batch(core.nets.gvf, uniform, uniform["next", "reward"])
+
+    def gradients(ddpg_batch):
+        core._zero_grad()
+        core.ddpg.loss(ddpg_batch)[0].backward()
+        return [p.grad.clone() for p in core.nets.actor.parameters()], [
+            p.grad.clone() for p in core.ddpg.critic_optimizer.param_groups[0]["params"]
+        ]
+
+    actor, critic = gradients(batch)
+    torch.manual_seed(0)  # the same target-smoothing noise for the critics' two losses
+    critic = gradients(batch)[1]
+    unmarked = batch.exclude(FROM_CRASHES)  # every item, as the default trains the actor
+    actor_all = gradients(unmarked)[0]
+    actor_calm = gradients(unmarked[~marked])[0]
+    torch.manual_seed(0)
+    critic_all = gradients(unmarked)[1]
+    assert all(torch.allclose(a, b, atol=1e-6) for a, b in zip(actor, actor_calm))
+    assert not all(torch.allclose(a, b, atol=1e-6) for a, b in zip(actor, actor_all))
+    assert all(torch.allclose(a, b, atol=1e-6) for a, b in zip(critic, critic_all))  # the critic keeps them

@@ -139,6 +139,8 @@ class ScaleConfig:
     termination after the main ring evicted them; DDPG and g sample both together (learner.replay); 0: none, the paper."""
     crash_steps: int = 30
     """Steps before a termination kept in the crash memory (at most the actor's chunk_len + 1)."""
+    crash_memory_actor: bool = True
+    """false: the actor's loss leaves out the crash memory's items; the critic still learns from them (learner.ddpg)."""
     lr_actor_decay_updates: int = 0
     """Updates over which the actor's step size falls linearly from lr_actor to lr_actor *
     lr_actor_final, then stays there; 0: constant, as the paper."""
@@ -205,6 +207,10 @@ def check_scale(scale: ScaleConfig) -> None:
         raise ValueError(f"scale.policy_average must be in [0, 1), got {scale.policy_average}")
     if scale.crash_memory < 0:
         raise ValueError(f"scale.crash_memory must be >= 0, got {scale.crash_memory}")
+    if not scale.crash_memory_actor and not scale.crash_memory:
+        raise ValueError(
+            "scale.crash_memory_actor=false needs scale.crash_memory > 0 (there are no crash items to leave out)"
+        )
     if scale.crash_steps < 1:
         raise ValueError(f"scale.crash_steps must be >= 1, got {scale.crash_steps}")
     if scale.lr_actor_decay_updates < 0:
