@@ -156,17 +156,25 @@ class BranchedActor(nn.Module):
 class BranchedCritic(nn.Module):
     """Q(x, a): sum of `n_branches` MLP branches on [x, a]; linear output (B, 1).
 
-    `norm` puts a LayerNorm before each hidden ReLU (Ball et al. 2023): |Q| is then bounded by the
+    `reads` keeps only x's first features (GVF-DDPG's `scale.critic_last_action=false` leaves phi's
+    last action out). `norm` puts a LayerNorm before each hidden ReLU (Ball et al. 2023): |Q| is then bounded by the
     last layer's weights wherever the input goes, so the actor cannot climb an extrapolation."""
 
     def __init__(
-        self, in_dim: int, hidden: Sequence[int], n_actions: int = ACTION_DIM, n_branches: int = 2, norm: bool = False
+        self,
+        in_dim: int,
+        hidden: Sequence[int],
+        n_actions: int = ACTION_DIM,
+        n_branches: int = 2,
+        norm: bool = False,
+        reads: int | None = None,
     ):
         super().__init__()
-        self.branches = nn.ModuleList(mlp(in_dim + n_actions, hidden, 1, norm) for _ in range(n_branches))
+        self.reads = in_dim if reads is None else reads  # x's leading features read; the rest are ignored
+        self.branches = nn.ModuleList(mlp(self.reads + n_actions, hidden, 1, norm) for _ in range(n_branches))
 
     def forward(self, x: Tensor, action: Tensor) -> Tensor:
-        xa = torch.cat([x, action], -1)
+        xa = torch.cat([x[..., : self.reads], action], -1)
         return torch.stack([branch(xa) for branch in self.branches], 0).sum(0)
 
 
@@ -307,7 +315,9 @@ def make_networks(agent: AgentConfig, scale: ScaleConfig) -> Networks:
     """Every network of the variant: acting policy, critic, and for GVF-DDPG the GVFs and g."""
     policy = make_policy(agent, scale)
     if agent.representation == "predictive":
-        critic = BranchedCritic(policy.gvf.n_predictions + LOW_DIM, scale.policy_hidden, norm=scale.critic_norm)
+        n_phi = policy.gvf.n_predictions + LOW_DIM
+        reads = n_phi if scale.critic_last_action else n_phi - ACTION_DIM  # phi ends with the last action
+        critic = BranchedCritic(n_phi, scale.policy_hidden, norm=scale.critic_norm, reads=reads)
         behaviour = BehaviourNetwork(scale.conv_channels, scale.behaviour_hidden)
         return Networks("predictive", policy.actor, critic, policy, policy.gvf, behaviour)
     lowdim = scale.lowdim_width if agent.representation == "lowdim" else 0

@@ -203,6 +203,21 @@ def test_critic_is_the_sum_of_its_branches():
     assert torch.allclose(critic(x, a), expected)
 
 
+def test_critic_without_the_last_action_ignores_phis_tail_and_reads_the_action():
+    agent, scale = load("gvf_ddpg", "small")
+    torch.manual_seed(0)
+    critic = make_networks(agent, dataclasses.replace(scale, critic_last_action=False)).critic
+    n_phi = make_networks(agent, scale).policy.gvf.n_predictions + 3  # phi: predictions, speed, last action
+    x, a = torch.randn(6, n_phi), torch.randn(6, 2)
+    other_last = x.clone()
+    other_last[:, -2:] = torch.randn(6, 2)  # phi's last action: steering, target speed
+    assert torch.equal(critic(other_last, a), critic(x, a))
+    assert not torch.allclose(critic(x, a + 0.5), critic(x, a))
+    assert critic.branches[0][0].in_features == n_phi - 2 + 2  # predictions and speed, then the action
+    full = make_networks(agent, scale).critic  # the paper's: phi's every entry
+    assert not torch.allclose(full(other_last, a), full(x, a))
+
+
 @pytest.mark.parametrize("variant", ["gvf_ddpg", "ddpg_lowdim"])
 def test_broadcast_weights_rebuild_the_same_policy_on_the_actor_side(variant):
     agent, scale = load(variant, "small")

@@ -8,7 +8,7 @@ import pytest
 import torch
 
 from common.config.agent import AgentConfig, ScaleConfig
-from common.networks import make_policy
+from common.networks import make_networks, make_policy
 from learner.behaviour import log_mu_hat
 from learner.core import LearningCore
 from learner.gvf import importance_ratio, log_tau
@@ -105,6 +105,20 @@ def test_critic_norm_trains_with_the_twin_critics(data):
         k for k, v in core.ddpg.loss_module.qvalue_network_params.items(True, True) if not torch.equal(v, params[k])
     ]
     assert any(k[-2:] == ("1", "weight") for k in moved)  # the LayerNorm's gain (layer 1 of a branch) learns
+
+
+def test_critic_without_the_last_action_trains_and_loads_from_its_checkpointed_scale(data):
+    scale = dataclasses.replace(TINY, critic_last_action=False, td3=True)
+    core = LearningCore(AgentConfig(name="gvf_ddpg", **VARIANTS["gvf_ddpg"]), scale)
+    core.add(data)
+    metrics = {}
+    while not metrics:
+        metrics = core.update()
+    assert all(torch.isfinite(torch.tensor(v)) for v in metrics.values()), metrics
+    rebuilt = make_networks(core.agent, scale).critic
+    rebuilt.load_state_dict(core.nets.critic.state_dict())  # shapes follow the scale, as checkpoints store it
+    with pytest.raises(RuntimeError, match="size mismatch"):
+        make_networks(core.agent, TINY).critic.load_state_dict(core.nets.critic.state_dict())
 
 
 def test_rho_at_insert_is_tau_over_mu_hat_and_clips_are_counted(data):

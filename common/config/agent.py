@@ -116,6 +116,11 @@ class ScaleConfig:
     critic_norm: bool = False
     """A LayerNorm before each hidden ReLU of DDPG's critic (Ball et al. 2023; common.networks.
     BranchedCritic): Q bounded wherever the actor moves the action; False: the paper's plain MLP."""
+    critic_last_action: bool = True
+    """False: GVF-DDPG's critic reads phi without its last action (the predictions and the speed):
+    with the paper's slow OU noise the action differs from the last action by ~0.01 per step, so
+    the critic can credit the steering to either input and the actor's dQ/da is left the residual;
+    the actor keeps it. The image baselines are unaffected."""
     reward_scale: float = 1.0
     """DDPG's reward is multiplied by this (the paper scaled its reward so that action values lie in [-1, 1])."""
     crash_penalty: float = 0.0
