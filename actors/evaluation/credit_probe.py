@@ -21,10 +21,9 @@ import torch
 
 from actors.envs.sim import LaneDriveSim
 from actors.evaluation.critic_probe import load_probed
-from actors.evaluation.main import eval_env_kwargs
-from actors.evaluation.road_gap import checkpoint_tool, roads
-from actors.evaluation.steer_probe import ActFn, network_act
-from common.config.env import OFF_CENTRE, EnvConfig
+from actors.evaluation.road_gap import cell, checkpoint_tool
+from actors.evaluation.steer_probe import ActFn, network_act, sim_on_test_laps
+from common.config.env import OFF_CENTRE
 from common.config.run import RunConfig
 
 LAST_STEER = -2  # phi = [predictions, speed, last steering, last target speed]
@@ -74,21 +73,11 @@ def summarise(rows: np.ndarray, changes: np.ndarray) -> dict:
 
 def measure_checkpoint(path: Path, cfg: RunConfig | None = None, every: int = 10) -> dict:
     state, agent, scale, policy, critic = load_probed(path)
-    cfg = cfg or RunConfig()
-    env = EnvConfig.from_kwargs(lighting=False, **eval_env_kwargs(cfg))
-    drives = [(name, d) for name in roads(cfg)["test"] for d in cfg.eval.directions]
-    sim = LaneDriveSim(env, len(drives))
-    rng = np.random.default_rng(0)
-    for i, (name, d) in enumerate(drives):
-        sim.reset(i, rng, {"track": name, "direction": d, "random_start": False})
-    rows, changes = credit_rows(sim, network_act(policy), critic, every)
+    rows, changes = credit_rows(sim_on_test_laps(cfg or RunConfig()), network_act(policy), critic, every)
     return {"agent": agent.name, "updates": state["core"]["updates"], **summarise(rows, changes)}
 
 
 def report(measured: dict[str, dict]) -> list[str]:
-    def cell(m: dict, key: str, fmt: str) -> str:
-        return "-" if m.get(key) is None else format(m[key], fmt)
-
     lines = [
         f"Off-centre test-lap states (|alpha| >= {OFF_CENTRE}), every 10th step: the critic's slopes along "
         "the steering and along phi's last steering, positive towards the centre; the policy's change "

@@ -38,7 +38,7 @@ from actors.envs.sim import target_speed
 from actors.evaluation.evaluate import evaluate
 from actors.evaluation.main import eval_env_kwargs
 from actors.evaluation.policies import known_config
-from actors.evaluation.road_gap import checkpoint_tool, roads
+from actors.evaluation.road_gap import cell, checkpoint_tool, roads
 from common import checkpoint
 from common.config.agent import AgentConfig, ScaleConfig, shaped_reward, step_sizes
 from common.config.env import OFF_CENTRE
@@ -207,9 +207,6 @@ def measure_checkpoint(path: Path, cfg: RunConfig | None = None, splits=("test",
 
 
 def report(measured: dict[str, dict]) -> list[str]:
-    def cell(m: dict, key: str, fmt: str) -> str:
-        return "-" if m.get(key) is None else format(m[key], fmt)  # cached before a column existed: "-"
-
     lines = [
         "| checkpoint | updates | laps | pre-crash steps | Q - G pre-crash | Q - G lapping | preferred - driven "
         "speed pre-crash (m/s) | lapping | slower preferred pre-crash | dQ/dv > 0 pre-crash | lapping |",

@@ -143,6 +143,11 @@ def report(measured: dict[str, dict], fail_below: int = 11) -> list[str]:
     return lines
 
 
+def cell(m: dict, key: str, fmt: str) -> str:
+    """A table cell of a cached measurement: "-" where it is missing (cached before a column existed)."""
+    return "-" if m.get(key) is None else format(m[key], fmt)
+
+
 def checkpoint_tool(
     argv: list[str] | None, doc: str, module: str, measure: Callable[[Path], dict], table: Callable, title: str
 ) -> None:

@@ -30,7 +30,7 @@ import torch
 from actors.envs.sim import LaneDriveSim
 from actors.evaluation.critic_probe import load_probed
 from actors.evaluation.main import eval_env_kwargs
-from actors.evaluation.road_gap import checkpoint_tool, roads
+from actors.evaluation.road_gap import cell, checkpoint_tool, roads
 from common.config.agent import ScaleConfig, shaped_reward, step_sizes
 from common.config.env import OFF_CENTRE, EnvConfig
 from common.config.run import RunConfig
@@ -140,26 +140,29 @@ def ddpg_reward(scale: ScaleConfig, v_max: float):
     )
 
 
-def measure_checkpoint(path: Path, cfg: RunConfig | None = None, **probe_kwargs) -> dict:
-    state, agent, scale, policy, critic = load_probed(path)
-    cfg = cfg or RunConfig()
+def sim_on_test_laps(cfg: RunConfig) -> LaneDriveSim:
+    """One car per test road and direction, at each lap's start, as the run's evaluator drives them."""
     env = EnvConfig.from_kwargs(lighting=False, **eval_env_kwargs(cfg))
     drives = [(name, d) for name in roads(cfg)["test"] for d in cfg.eval.directions]
     sim = LaneDriveSim(env, len(drives))
     rng = np.random.default_rng(0)
     for i, (name, d) in enumerate(drives):
         sim.reset(i, rng, {"track": name, "direction": d, "random_start": False})
+    return sim
+
+
+def measure_checkpoint(path: Path, cfg: RunConfig | None = None, **probe_kwargs) -> dict:
+    state, agent, scale, policy, critic = load_probed(path)
+    cfg = cfg or RunConfig()
+    sim = sim_on_test_laps(cfg)
     discount = step_sizes(agent, scale)["discount"]
-    reward = ddpg_reward(scale, env.vehicle.v_max)
+    reward = ddpg_reward(scale, sim.cfg.vehicle.v_max)
     rows = probe_drives(sim, network_act(policy), critic_slope(critic), reward, discount, **probe_kwargs)
     settings = {"every": 40, "horizon": 300, "eps": 0.1, **probe_kwargs}
     return {"agent": agent.name, "updates": state["core"]["updates"], "probe": settings, **summarise(rows)}
 
 
 def report(measured: dict[str, dict]) -> list[str]:
-    def cell(m: dict, key: str, fmt: str) -> str:
-        return "-" if m.get(key) is None else format(m[key], fmt)
-
     settings = sorted({json.dumps(m.get("probe"), sort_keys=True) for m in measured.values()})
     lines = [
         f"Off-centre test-lap states (|alpha| >= {OFF_CENTRE}); slopes of Q along the steering, positive "
