@@ -178,6 +178,55 @@ class BranchedCritic(nn.Module):
         return torch.stack([branch(xa) for branch in self.branches], 0).sum(0)
 
 
+class _Unregistered:
+    """A module held outside the parent's registry: deepcopy (TD3's twin) shares it, state_dict,
+    parameters() and reset_parameters() leave it alone."""
+
+    def __init__(self, module: nn.Module):
+        self.module = module
+
+    def __deepcopy__(self, memo: dict) -> _Unregistered:
+        return self
+
+
+class AdvantageCritic(nn.Module):
+    """Q(x, a) = V(x) + A(x, a) - A(x, pi(x)): a dueling critic (Wang et al. 2016) centred on the
+    current policy, so V is the policy's value and A only the action's part of Q, as advantage
+    updating does for fine control periods (Tallec et al. 2019, where a plain Q's action slope
+    fades with the step). pi is `centre_on`'s actor, run without gradient; `reads` as BranchedCritic.
+    Written here: torchrl has no continuous-action dueling critic."""
+
+    def __init__(
+        self,
+        in_dim: int,
+        hidden: Sequence[int],
+        n_actions: int = ACTION_DIM,
+        norm: bool = False,
+        reads: int | None = None,
+    ):
+        super().__init__()
+        self.reads = in_dim if reads is None else reads
+        self.value = mlp(self.reads, hidden, 1, norm)
+        self.advantage = mlp(self.reads + n_actions, hidden, 1, norm)
+        self._policy: _Unregistered | None = None
+
+    def centre_on(self, policy: nn.Module) -> AdvantageCritic:
+        self._policy = _Unregistered(policy)
+        return self
+
+    def forward(self, x: Tensor, action: Tensor) -> Tensor:
+        if self._policy is None:
+            raise RuntimeError("AdvantageCritic needs centre_on(actor) before its first call")
+        with torch.no_grad():
+            reference = self._policy.module(x)
+        read = x[..., : self.reads]
+        return (
+            self.value(read)
+            + self.advantage(torch.cat([read, action], -1))
+            - self.advantage(torch.cat([read, reference], -1))
+        )
+
+
 class ImageEncoder(nn.Module):
     """DDPG-Image input [trunk(frames), speed, last action]; LowDim adds a 12-unit (alpha, beta) branch."""
 
@@ -317,7 +366,11 @@ def make_networks(agent: AgentConfig, scale: ScaleConfig) -> Networks:
     if agent.representation == "predictive":
         n_phi = policy.gvf.n_predictions + LOW_DIM
         reads = n_phi if scale.critic_last_action else n_phi - ACTION_DIM  # phi ends with the last action
-        critic = BranchedCritic(n_phi, scale.policy_hidden, norm=scale.critic_norm, reads=reads)
+        if scale.critic_advantage:
+            critic = AdvantageCritic(n_phi, scale.policy_hidden, norm=scale.critic_norm, reads=reads)
+            critic.centre_on(policy.actor)
+        else:
+            critic = BranchedCritic(n_phi, scale.policy_hidden, norm=scale.critic_norm, reads=reads)
         behaviour = BehaviourNetwork(scale.conv_channels, scale.behaviour_hidden)
         return Networks("predictive", policy.actor, critic, policy, policy.gvf, behaviour)
     lowdim = scale.lowdim_width if agent.representation == "lowdim" else 0

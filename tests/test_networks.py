@@ -13,6 +13,7 @@ from omegaconf import OmegaConf
 
 from common.config.agent import AgentConfig, ScaleConfig, register
 from common.networks import (
+    AdvantageCritic,
     BranchedActor,
     BranchedCritic,
     GVFNetwork,
@@ -216,6 +217,40 @@ def test_critic_without_the_last_action_ignores_phis_tail_and_reads_the_action()
     assert critic.branches[0][0].in_features == n_phi - 2 + 2  # predictions and speed, then the action
     full = make_networks(agent, scale).critic  # the paper's: phi's every entry
     assert not torch.allclose(full(other_last, a), full(x, a))
+
+
+def test_advantage_critic_is_the_value_at_the_policys_action_and_moves_with_the_action_elsewhere():
+    agent, scale = load("gvf_ddpg", "small")
+    torch.manual_seed(0)
+    nets = make_networks(agent, dataclasses.replace(scale, critic_advantage=True))
+    critic, actor = nets.critic, nets.actor
+    assert isinstance(critic, AdvantageCritic)
+    n_phi = nets.policy.gvf.n_predictions + 3
+    x = torch.randn(6, n_phi)
+    with torch.no_grad():
+        at_policy = actor(x)
+        assert torch.allclose(critic(x, at_policy), critic.value(x), atol=1e-6)  # Q(x, pi(x)) = V(x)
+        assert not torch.allclose(critic(x, at_policy + 0.3), critic.value(x))
+    # the actor's gradient flows through A(x, a) only, and the critic never registers the actor
+    a = actor(x)
+    critic(x, a).sum().backward()
+    assert all(p.grad is not None and p.grad.abs().sum() > 0 for p in actor.parameters() if p.requires_grad)
+    assert not any(name.startswith("_policy") for name, _ in critic.named_parameters())
+    assert set(critic.state_dict()) == {k for k in critic.state_dict() if k.split(".")[0] in ("value", "advantage")}
+
+
+def test_advantage_critics_twin_shares_the_actor_and_an_uncentred_one_is_refused():
+    import copy
+
+    actor, critic = BranchedActor(7, [8]), AdvantageCritic(7, [8])
+    with pytest.raises(RuntimeError, match="centre_on"):
+        critic(torch.randn(2, 7), torch.zeros(2, 2))
+    twin = copy.deepcopy(critic.centre_on(actor))
+    assert twin._policy.module is actor  # the twin centres on the live actor, not a frozen copy
+    for module in twin.modules():  # TD3 re-initialises the twin: the actor must not be touched
+        if hasattr(module, "reset_parameters"):
+            module.reset_parameters()
+    assert actor.branches[0][-1].weight.abs().max() <= 1e-3  # still its near-zero initialisation
 
 
 @pytest.mark.parametrize("variant", ["gvf_ddpg", "ddpg_lowdim"])

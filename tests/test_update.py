@@ -121,6 +121,22 @@ def test_critic_without_the_last_action_trains_and_loads_from_its_checkpointed_s
         make_networks(core.agent, TINY).critic.load_state_dict(core.nets.critic.state_dict())
 
 
+def test_advantage_critic_trains_with_twin_critics_and_loads_from_its_checkpointed_scale(data):
+    scale = dataclasses.replace(TINY, critic_advantage=True, td3=True)
+    core = LearningCore(AgentConfig(name="gvf_ddpg", **VARIANTS["gvf_ddpg"]), scale)
+    core.add(data)
+    before = {k: v.clone() for k, v in core.nets.actor.state_dict().items()}
+    metrics = {}
+    while not metrics:  # the first metrics come after the actor's delay: both losses have stepped
+        metrics = core.update()
+    assert all(torch.isfinite(torch.tensor(v)) for v in metrics.values()), metrics
+    assert any(not torch.equal(before[k], v) for k, v in core.nets.actor.state_dict().items())
+    rebuilt = make_networks(core.agent, scale).critic
+    rebuilt.load_state_dict(core.nets.critic.state_dict())
+    with pytest.raises(RuntimeError, match="Missing key"):
+        make_networks(core.agent, TINY).critic.load_state_dict(core.nets.critic.state_dict())
+
+
 def test_rho_at_insert_is_tau_over_mu_hat_and_clips_are_counted(data):
     core = make_core("gvf_ddpg", rho_max=20.0)
     batch = data[:64]

@@ -121,6 +121,10 @@ class ScaleConfig:
     with the paper's slow OU noise the action differs from the last action by ~0.01 per step, so
     the critic can credit the steering to either input and the actor's dQ/da is left the residual;
     the actor keeps it. The image baselines are unaffected."""
+    critic_advantage: bool = False
+    """True: GVF-DDPG's critic is V(phi) + A(phi, a) - A(phi, pi(phi)) (common.networks.AdvantageCritic),
+    so the action's small part of Q has its own head; False: the paper's Q(phi, a). The image
+    baselines are unaffected."""
     reward_scale: float = 1.0
     """DDPG's reward is multiplied by this (the paper scaled its reward so that action values lie in [-1, 1])."""
     crash_penalty: float = 0.0
