@@ -112,6 +112,7 @@ class LearningCore:
             lr_actor_final=scale.lr_actor_final,
             actor_min_q=scale.actor_min_q,
             actor_on_crash_memory=scale.crash_memory_actor,
+            target_min_weight=scale.td3_target_min_weight,
         )
         self.updates = 0
         self.warm = False  # g trained on the warm-up data and every rho recomputed
@@ -173,8 +174,7 @@ class LearningCore:
         self.replay.extend(compact(transitions, rho).to("cpu"))
 
     def add_crashes(self, transitions: TensorDictBase) -> None:
-        """Keep copies of the steps before terminations in the crash memory (`scale.crash_memory`;
-        without one they are already in the replay through `add` and nothing more is done)."""
+        """Keep copies of the steps before terminations in the crash memory (`scale.crash_memory`), if any."""
         if self.crashes is not None:
             rho = torch.ones(transitions.shape[0], 1)  # never sampled by rho
             self.crashes.extend(compact(transitions, rho).to("cpu"))

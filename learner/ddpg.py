@@ -26,6 +26,9 @@ the crash memory's items (`learner.replay.FROM_CRASHES`) out of the actor's loss
 learns the crashes' cost from them, while the actor improves at the states its policy reaches,
 not at copies of old pre-crash states whose steep Q gradients would steer every state.
 
+`target_min_weight` (an option with td3, 1 by default: TD3's minimum) bootstraps from a blend of the
+twin target critics, `learner.td3_target`.
+
 `lr_actor_decay_updates` (an option, 0 by default) lowers the actor's step size linearly to
 `lr_actor_final` of it over that many updates, so that a policy found early moves less later.
 """
@@ -39,9 +42,10 @@ import torch
 from tensordict import TensorDictBase
 from tensordict.nn import TensorDictModule
 from torch import Tensor, nn
-from torchrl.objectives import DDPGLoss, SoftUpdate, TD3Loss, ValueEstimators
+from torchrl.objectives import DDPGLoss, SoftUpdate, ValueEstimators
 
 from learner.replay import FROM_CRASHES
+from learner.td3_target import BlendedTD3Loss
 
 
 class DDPG:
@@ -66,6 +70,7 @@ class DDPG:
         lr_actor_final: float = 0.1,
         actor_min_q: bool = False,
         actor_on_crash_memory: bool = True,
+        target_min_weight: float = 1.0,
     ):
         if actor_min_q and not td3:
             raise ValueError("actor_min_q needs td3 (twin critics)")
@@ -83,7 +88,7 @@ class DDPG:
             for module in twin.modules():  # the twin starts elsewhere, or the two critics agree
                 if hasattr(module, "reset_parameters"):
                     module.reset_parameters()
-            self.loss_module = TD3Loss(
+            self.loss_module = BlendedTD3Loss(
                 actor_module,
                 [q(critic), q(twin)],
                 bounds=(-1.0, 1.0),
@@ -93,6 +98,7 @@ class DDPG:
                 loss_function="l2",
                 deactivate_vmap=True,
             )  # vmap cannot run the channels_last conv trunk
+            self.loss_module.min_weight = target_min_weight
             # the twin critics' parameters live stacked in the loss module, not in `critic`
             critic_params = list(self.loss_module.qvalue_network_params.values(True, True))
         else:

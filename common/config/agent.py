@@ -163,6 +163,9 @@ class ScaleConfig:
     """td3: the target action's noise is clipped to +-this."""
     td3_actor_delay: int = 2
     """td3: the actor is stepped once every this many updates."""
+    td3_target_min_weight: float = 1.0
+    """td3: the target bootstraps from w min + (1 - w) max of the twin target critics (learner.td3_target); 1: TD3's minimum."""
+    """td3: the actor is stepped once every this many updates."""
     actor_min_q: bool = False
     """td3: the actor maximises min(Q1, Q2) (as SAC) instead of TD3's Q1 (learner.ddpg)."""
 
@@ -230,6 +233,10 @@ def check_scale(scale: ScaleConfig) -> None:
         raise ValueError("scale.actor_min_q needs scale.td3=true (it takes the smaller of the twin critics)")
     if not 0.0 <= scale.steer_increment <= 2.0:
         raise ValueError(f"scale.steer_increment must be in [0, 2], got {scale.steer_increment}")
+    if not 0.0 <= scale.td3_target_min_weight <= 1.0:
+        raise ValueError(f"scale.td3_target_min_weight must be in [0, 1], got {scale.td3_target_min_weight}")
+    if scale.td3_target_min_weight != 1.0 and not scale.td3:
+        raise ValueError("scale.td3_target_min_weight needs scale.td3=true (it blends the twin critics)")
     if scale.td3_actor_delay < 1:
         raise ValueError(f"scale.td3_actor_delay must be >= 1, got {scale.td3_actor_delay}")
 
