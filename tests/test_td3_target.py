@@ -12,6 +12,7 @@ from torchrl.objectives import ValueEstimators
 from common.config.agent import check_scale
 from learner.td3_target import BlendedTD3Loss
 from tests.core_fixtures import TINY
+from tests.test_ddpg import random_batch
 
 
 class ConstantQ(nn.Module):
@@ -24,9 +25,9 @@ class ConstantQ(nn.Module):
 
 
 def loss_with(min_weight: float, discount: float = 0.9) -> BlendedTD3Loss:
-    actor = TensorDictModule(nn.Linear(3, 2), in_keys=["obs"], out_keys=["action"])
+    actor = TensorDictModule(nn.Linear(3, 2), in_keys=["phi"], out_keys=["action"])
     critics = [
-        TensorDictModule(ConstantQ(v), in_keys=["obs", "action"], out_keys=["state_action_value"]) for v in (1.0, 3.0)
+        TensorDictModule(ConstantQ(v), in_keys=["phi", "action"], out_keys=["state_action_value"]) for v in (1.0, 3.0)
     ]
     loss = BlendedTD3Loss(actor, critics, bounds=(-1.0, 1.0), num_qvalue_nets=2, deactivate_vmap=True)
     loss.make_value_estimator(ValueEstimators.TD0, gamma=discount)
@@ -35,19 +36,9 @@ def loss_with(min_weight: float, discount: float = 0.9) -> BlendedTD3Loss:
 
 
 def batch(n: int = 4) -> TensorDict:
-    return TensorDict(
-        {
-            "obs": torch.randn(n, 3),
-            "action": torch.zeros(n, 2),
-            "next": {
-                "obs": torch.randn(n, 3),
-                "reward": torch.zeros(n, 1),
-                "done": torch.zeros(n, 1, dtype=torch.bool),
-                "terminated": torch.zeros(n, 1, dtype=torch.bool),
-            },
-        },
-        [n],
-    )
+    out = random_batch(n)
+    out["next", "reward"].zero_()  # the target is then the discount times the bootstrap alone
+    return out
 
 
 @pytest.mark.parametrize(("weight", "bootstrap"), [(1.0, 1.0), (0.5, 2.0), (0.0, 3.0), (0.75, 1.5)])
