@@ -165,7 +165,6 @@ class ScaleConfig:
     """td3: the actor is stepped once every this many updates."""
     td3_target_min_weight: float = 1.0
     """td3: the target bootstraps from w min + (1 - w) max of the twin target critics (learner.td3_target); 1: TD3's minimum."""
-    """td3: the actor is stepped once every this many updates."""
     actor_min_q: bool = False
     """td3: the actor maximises min(Q1, Q2) (as SAC) instead of TD3's Q1 (learner.ddpg)."""
 
