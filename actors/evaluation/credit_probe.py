@@ -22,7 +22,7 @@ import torch
 from actors.envs.sim import LaneDriveSim
 from actors.evaluation.critic_probe import load_probed
 from actors.evaluation.road_gap import cell, checkpoint_tool
-from actors.evaluation.steer_probe import ActFn, network_act, sim_on_test_laps
+from actors.evaluation.steer_probe import ActFn, network_act, sim_on_test_laps, step_laps
 from common.config.env import OFF_CENTRE
 from common.config.run import RunConfig
 
@@ -47,9 +47,7 @@ def credit_rows(sim: LaneDriveSim, act: ActFn, critic, every: int = 10, min_offs
             towards = -np.sign(sim.alpha)  # steering left (+) moves alpha up
             for i in np.flatnonzero(off):
                 rows.append((sim.alpha[i], towards[i] * da[i, 0].item(), towards[i] * dx[i, LAST_STEER].item()))
-        terminated, truncated = sim.step(actions)
-        lapped = np.array([sim.info(i)["lap_completed"] for i in range(sim.n)], bool)
-        running &= ~(terminated | truncated | lapped)
+        running &= ~step_laps(sim, actions)
         step += 1
     return np.asarray(rows, np.float64).reshape(-1, 3), np.concatenate(changes) if changes else np.zeros(0)
 

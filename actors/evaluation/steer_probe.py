@@ -57,6 +57,14 @@ def branch_returns(sim: LaneDriveSim, act: ActFn, first: np.ndarray, reward: Cal
     return g
 
 
+def step_laps(sim: LaneDriveSim, actions: np.ndarray) -> np.ndarray:
+    """Step every car of `sim` with `actions`; the cars whose test lap ended there (left the lane,
+    ran out of time or completed it)."""
+    terminated, truncated = sim.step(actions)
+    lapped = np.array([sim.info(i)["lap_completed"] for i in range(sim.n)], bool)
+    return terminated | truncated | lapped
+
+
 def probe_drives(
     sim: LaneDriveSim,
     act: ActFn,
@@ -84,9 +92,7 @@ def probe_drives(
             moved = towards * (shifted[0][:, 0] - shifted[1][:, 0])  # less than 2 eps where clipped at a bound
             for i in np.flatnonzero(off & (moved > 0)):
                 rows.append((sim.alpha[i], (g_to[i] - g_away[i]) / moved[i], critic[i]))
-        terminated, truncated = sim.step(actions)
-        lapped = np.array([sim.info(i)["lap_completed"] for i in range(sim.n)], bool)
-        running &= ~(terminated | truncated | lapped)
+        running &= ~step_laps(sim, actions)
         step += 1
     return np.asarray(rows, np.float64).reshape(-1, 3)
 

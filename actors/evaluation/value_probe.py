@@ -21,7 +21,7 @@ import torch
 from actors.envs.sim import LaneDriveSim
 from actors.evaluation.critic_probe import load_probed
 from actors.evaluation.road_gap import cell, checkpoint_tool
-from actors.evaluation.steer_probe import ActFn, branch_returns, ddpg_reward, network_act, sim_on_test_laps
+from actors.evaluation.steer_probe import ActFn, branch_returns, ddpg_reward, network_act, sim_on_test_laps, step_laps
 from common.config.agent import step_sizes
 from common.config.run import RunConfig
 
@@ -37,9 +37,7 @@ def value_rows(sim: LaneDriveSim, act: ActFn, critic, reward, discount: float, e
                 q = critic(features, torch.from_numpy(actions)).reshape(-1).numpy()
             g = branch_returns(sim, act, actions, reward, horizon, discount)
             rows.extend((sim.alpha[i], sim.v[i], q[i], g[i]) for i in np.flatnonzero(running))
-        terminated, truncated = sim.step(actions)
-        lapped = np.array([sim.info(i)["lap_completed"] for i in range(sim.n)], bool)
-        running &= ~(terminated | truncated | lapped)
+        running &= ~step_laps(sim, actions)
         step += 1
     return np.asarray(rows, np.float64).reshape(-1, 4)
 
