@@ -42,7 +42,14 @@ class Acting:
     """Batched policy inference with per-env OU exploration (paper: theta 1.0, sigma 0.1, dt 0.01)."""
 
     def __init__(
-        self, agent: AgentConfig, scale: ScaleConfig, actor: ActorConfig, n_envs: int, seed: int, deployed: bool = False
+        self,
+        agent: AgentConfig,
+        scale: ScaleConfig,
+        actor: ActorConfig,
+        n_envs: int,
+        seed: int,
+        deployed: bool = False,
+        keep_online: bool = False,
     ) -> None:
         self.policy = make_policy(agent, scale).eval()
         self.lowdim = agent.representation == "lowdim"
@@ -56,6 +63,10 @@ class Acting:
         self.deployed = deployed
         """Load the averaged policy (`AVERAGE` tensors, `scale.policy_average`) where weights carry
         one: the evaluator drives the policy a checkpoint keeps; actors explore with the online one."""
+        self.online = make_policy(agent, scale).eval() if deployed and keep_online else None
+        """`keep_online`: the online policy as well, where weights carried an average (`eval.online_too`)."""
+        self.has_average = False
+        """`keep_online`: whether the last weights loaded carried an average (then `online` holds theirs)."""
 
     @property
     def ready(self) -> bool:
@@ -68,12 +79,14 @@ class Acting:
         WireError('weights') before anything is loaded (`common.wire_rules.check_weights`)."""
         if weights.epoch == self.epoch and weights.version <= self.version:
             return False
-        policy = {k: v for k, v in weights.tensors.items() if not k.startswith((BEHAVIOUR, AVERAGE))}
+        online = {k: v for k, v in weights.tensors.items() if not k.startswith((BEHAVIOUR, AVERAGE))}
         average = {k[len(AVERAGE) :]: v for k, v in weights.tensors.items() if k.startswith(AVERAGE)}
-        if self.deployed and average:
-            policy = average
+        policy = average if self.deployed and average else online
         behaviour = {k[len(BEHAVIOUR) :]: v for k, v in weights.tensors.items() if k.startswith(BEHAVIOUR)}
         check_weights(dataclasses.replace(weights, tensors=policy), self.policy.state_dict())
+        keep_online = self.online is not None and policy is average
+        if keep_online:
+            check_weights(dataclasses.replace(weights, tensors=online), self.online.state_dict())
         g = None
         if behaviour:
             if not self.predictive:
@@ -81,6 +94,9 @@ class Acting:
             g = self.behaviour or BehaviourNetwork(*self._behaviour_shape).eval()
             check_weights(dataclasses.replace(weights, tensors=behaviour), g.state_dict())
         self.policy.load_state_dict(_tensors(policy))
+        if keep_online:
+            self.online.load_state_dict(_tensors(online))
+        self.has_average = keep_online
         if g is not None:
             g.load_state_dict(_tensors(behaviour))
         self.behaviour = g  # a learner that stops sending it takes rho back

@@ -94,3 +94,34 @@ def test_the_learners_checkpoint_keeps_the_averaged_policy(tmp_path, data):
 def test_a_rate_outside_0_1_is_refused_naming_the_field(rate):
     with pytest.raises(ValueError, match="scale.policy_average"):
         check_scale(dataclasses.replace(TINY, policy_average=rate))
+
+
+def test_the_evaluator_keeps_the_online_policy_beside_the_average_and_drives_each(data):
+    from actors.evaluation.evaluate import evaluate, summary
+    from actors.evaluation.main import eval_env_kwargs
+    from actors.evaluation.periodic import drive_online
+    from actors.evaluation.policies import network_policy
+
+    core = averaged_core(data, 0.2)
+    for _ in range(8):
+        core.update()
+    msg = wire.Weights(core.updates, {k: v.numpy() for k, v in core.broadcast_state_dict().items()}, epoch=1)
+    cfg = compose_run([*TINY_RUN, "scale.policy_average=0.2", "eval.online_too=true", "env.max_steps=25"])
+    evaluator = Acting(AGENT, core.scale, ActorConfig(), 1, seed=0, deployed=True, keep_online=True)
+    actor = Acting(AGENT, core.scale, ActorConfig(), 1, seed=0)  # what the actors explore with
+    assert drive_online(evaluator, cfg) is None  # nothing loaded yet
+    assert evaluator.load(msg) and actor.load(msg)
+    assert close(evaluator.policy.state_dict(), core.deployed_state_dict(), atol=0)
+    assert close(evaluator.online.state_dict(), actor.policy.state_dict(), atol=0)
+    roads = (cfg.eval.split, tuple(cfg.eval.directions))
+    online = drive_online(evaluator, cfg)
+    assert online == summary(evaluate(network_policy(actor.policy, False), *roads, **eval_env_kwargs(cfg)))
+    assert online != summary(evaluate(network_policy(evaluator.policy, False), *roads, **eval_env_kwargs(cfg)))
+    # weights without an average: the evaluator drives the online policy once, not twice
+    plain = wire.Weights(core.updates, {k: v.numpy() for k, v in core.policy_state_dict().items()}, epoch=2)
+    assert evaluator.load(plain) and drive_online(evaluator, cfg) is None
+
+
+def test_online_too_without_an_average_is_refused_naming_the_field():
+    with pytest.raises(ValueError, match="eval.online_too"):
+        compose_run([*TINY_RUN, "eval.online_too=true"])

@@ -81,6 +81,15 @@ def save_best(path: Path, acting: Acting, cfg: RunConfig, updates: int, validati
     checkpoint.write(path, {**state, "validation": validation, "eval": test})
 
 
+def drive_online(acting: Acting, cfg: RunConfig) -> dict | None:
+    """The online policy's mean metrics on the evaluated roads, where the evaluator keeps it
+    (`eval.online_too`) and the weights carried an average; else None."""
+    if acting.online is None or not acting.has_average:
+        return None
+    policy = network_policy(acting.online, acting.lowdim)
+    return summary(evaluate(policy, cfg.eval.split, tuple(cfg.eval.directions), **eval_env_kwargs(cfg)))
+
+
 def evaluator_role(ctx) -> None:
     """The evaluator role (`common.roles`)."""
     run_evaluator(ctx.cfg, ctx.transport, ctx.run_dir, ctx.stop)
@@ -91,7 +100,7 @@ def run_evaluator(cfg: RunConfig, t, run_dir: str | Path, stop: threading.Event)
     # torch's default (a thread per core) fights the simulators for the cores: one TORCS evaluation of
     # 54 steps took 20 s with 2 threads, 2.9 s with 1, on the 2 loaded cores here
     torch.set_num_threads(cfg.actor.torch_threads)
-    acting = Acting(cfg.agent, cfg.scale, cfg.actor, 1, seed=0, deployed=True)
+    acting = Acting(cfg.agent, cfg.scale, cfg.actor, 1, seed=0, deployed=True, keep_online=cfg.eval.online_too)
     rejects = wire.RejectCounter()
     writer = SummaryWriter(str(Path(run_dir) / "tb" / "eval"))
     due = every
@@ -110,8 +119,11 @@ def run_evaluator(cfg: RunConfig, t, run_dir: str | Path, stop: threading.Event)
             policy = network_policy(acting.policy, acting.lowdim)
             results = evaluate(policy, cfg.eval.split, tuple(cfg.eval.directions), **eval_env_kwargs(cfg))
             mean, val = summary(results), validate(policy, cfg)
+            online = drive_online(acting, cfg)
             for key, value in mean.items():
                 writer.add_scalar(f"eval/{key}", value, version)
+            for key, value in (online or {}).items():
+                writer.add_scalar(f"eval/online_{key}", value, version)
             for key in ("lap_completed", "reward_per_s"):
                 writer.add_scalar(f"eval/validation_{key}", val[key], version)
             writer.flush()
@@ -126,7 +138,14 @@ def run_evaluator(cfg: RunConfig, t, run_dir: str | Path, stop: threading.Event)
             with open(Path(run_dir) / "eval.jsonl", "a") as f:
                 f.write(
                     json.dumps(
-                        {"updates": version, "time": time.time(), "mean": mean, "validation": val, "drives": drives}
+                        {
+                            "updates": version,
+                            "time": time.time(),
+                            "mean": mean,
+                            "validation": val,
+                            "drives": drives,
+                            **({"online": online} if online is not None else {}),
+                        }
                     )
                     + "\n"
                 )

@@ -94,6 +94,7 @@ def summarize(run_dir: Path, start: float, job: dict) -> dict:
                 "minute": round((e["time"] - start) / 60, 2) if "time" in e else None,
                 "mean": e["mean"],
                 "validation": e.get("validation"),
+                **({"online": e["online"]} if "online" in e else {}),
                 "drives": [
                     {"track": d["track"], **{k: d[k] for k in (*DRIVE_KEYS, "end_progress") if k in d}}
                     for d in e["drives"]

@@ -125,6 +125,9 @@ class EvalConfig:
     """gvf-train: evaluate the broadcast policy every this many learner updates (0: never)."""
     validation_tracks: list = field(default_factory=lambda: [f"procedural:{seed}" for seed in range(9001, 9007)])
     """gvf-train: roads (neither train nor test) on which the periodic evaluator picks its best policy."""
+    online_too: bool = False
+    """gvf-train with `scale.policy_average`: each evaluation also drives the online policy on the same
+    roads, recorded under 'online' in eval.jsonl (the average against the policy it averages, same run)."""
     video: bool = False
     """gvf-eval: also write lap.gif, one lap of the first road (top-down view beside the camera image)."""
     runs: Optional[str] = None
@@ -261,6 +264,10 @@ def to_objects(cfg: Any) -> tuple[RunConfig, AgentConfig, ScaleConfig]:
     if run.learner.weights_dtype not in WEIGHTS_DTYPES:
         raise ValueError(f"learner.weights_dtype must be one of {WEIGHTS_DTYPES}, got {run.learner.weights_dtype!r}")
     check_offline(run)
+    if run.eval.online_too and not run.scale.policy_average:
+        raise ValueError(
+            "eval.online_too needs scale.policy_average > 0 (without an average the online policy is the one driven)"
+        )
     if run.learner.rho_at == "actor" and run.agent.representation != "predictive":
         raise ValueError(f"learner.rho_at=actor needs a GVF variant, agent {run.agent.name!r} has no discriminator")
     return run, run.agent, run.scale
