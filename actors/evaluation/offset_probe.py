@@ -3,6 +3,9 @@
 Each policy drives the 12 test laps (both directions, no noise) and the lane offset is split by
 the road's curvature at each step: mean abs(alpha) on the straights, and in the bends the mean
 offset towards the outside of the bend (alpha signed against the curvature: positive is outside).
+Besides, the side it keeps: mean alpha over every step (positive left), per direction. On the same
+roads driven both ways, a policy whose steering is odd under the left-right mirror holds no side
+in both directions alike; a steering bias does (it keeps the same side whichever way it drives).
 A controller that steers on its offset alone, with no feed-forward of the bend, settles where the
 offset makes the steering the bend needs, on the outside, as a proportional controller's
 steady-state error; the kinematic controller, with its curvature feed-forward, stays near 0.
@@ -38,8 +41,9 @@ def offsets(policy, **evaluate_kwargs) -> dict:
     curvatures: list = []
     drives = evaluate(recording(policy, curvatures), **evaluate_kwargs)
     k_all = np.stack(curvatures)
-    straight, outside = [], []
+    straight, outside, side = [], [], {}
     for i, drive in enumerate(drives):
+        side.setdefault(drive["direction"], []).append(float(np.mean(drive["trace"]["alpha"])))
         alpha = drive["trace"]["alpha"]
         k = k_all[: len(alpha), i]
         bend = np.abs(k) >= STRAIGHT
@@ -52,6 +56,7 @@ def offsets(policy, **evaluate_kwargs) -> dict:
         "straight_abs_alpha": float(np.mean(straight)) if straight else None,
         "bend_outside_alpha": float(np.mean(outside)) if outside else None,
         "mean_abs_alpha": float(np.mean([d["metrics"]["offcenteredness"] for d in drives])),
+        "side_alpha": {direction: float(np.mean(v)) for direction, v in side.items()},
     }
 
 
