@@ -68,6 +68,7 @@ class LaneDriveSim:
         self.luts = np.tile(np.arange(256, dtype=np.uint8), (n, 1))
         self.tracks: list[Track] = [None] * n  # type: ignore[list-item]
         self.maps: list[RoadMap] = [None] * n  # type: ignore[list-item]
+        self.gust_rng: np.random.Generator | None = None  # the last reset's, so gusts follow the env's seed
         self.ahead: list[np.ndarray] = [None] * n  # type: ignore[list-item]
         self.path: list[list[tuple[float, float]]] = [[] for _ in range(n)]
 
@@ -80,6 +81,7 @@ class LaneDriveSim:
                 setattr(other, name, value.copy())
         other.tracks, other.maps, other.ahead = list(self.tracks), list(self.maps), list(self.ahead)
         other.path = [list(p) for p in self.path]
+        other.gust_rng = copy.deepcopy(self.gust_rng)  # the branch's gusts draw on without moving this one's
         return other
 
     # -- episodes -----------------------------------------------------------------------
@@ -118,6 +120,7 @@ class LaneDriveSim:
         self.reward[i] = 0.0
         self.last_action[i] = (0.0, -1.0)
         self.luts[i] = _brightness_table(rng, self.cfg.lighting)
+        self.gust_rng = rng
         self.place(i, s0, offset, yaw)
 
     def place(self, i: int, s: float, lateral: float, yaw: float) -> None:
@@ -165,7 +168,7 @@ class LaneDriveSim:
         step = self.v * dt
         self.x += step * np.cos(mid)
         self.y += step * np.sin(mid)
-        self.theta = (self.theta + dtheta + math.pi) % (2 * math.pi) - math.pi
+        self.theta = (self.theta + dtheta + self._gusts() + math.pi) % (2 * math.pi) - math.pi
         self.last_action[:] = a
         self.steps += 1
         for i in range(self.n):
@@ -178,6 +181,13 @@ class LaneDriveSim:
         terminated = np.abs(self.alpha) > 1.0
         truncated = (self.steps >= self.cfg.max_steps) & ~terminated
         return terminated, truncated
+
+    def _gusts(self) -> np.ndarray | float:
+        """Heading kicks of `env.gust_rate` (training only), uniform in +-`env.gust_yaw` rad."""
+        if not self.cfg.gust_rate or self.gust_rng is None:
+            return 0.0
+        hit = self.gust_rng.random(self.n) < self.cfg.gust_rate
+        return np.where(hit, self.gust_rng.uniform(-self.cfg.gust_yaw, self.cfg.gust_yaw, self.n), 0.0)
 
     def _locate(self, i: int) -> None:
         """Nearest centreline sample near the last one; sets alpha, beta and lap distance."""

@@ -15,7 +15,7 @@ import numpy as np
 from actors.envs.sim import LaneDriveSim
 from actors.envs.simulators import is_torcs, road_names
 from actors.evaluation.metrics import CONTROL_HZ, drive_metrics
-from common.config.env import EnvConfig
+from common.config.env import NOISE_FREE, EnvConfig
 
 # policy(obs, info) -> actions (n, 2) in [-1, 1], for a batch of n cars (info: name -> (n,) array)
 PolicyFn = Callable[[dict, dict], np.ndarray]
@@ -33,7 +33,7 @@ def evaluate(
     All drives run at once, one car each, so the policy sees one batch per step (a network's
     forward costs about as much for 12 cars as for 1); a car's drive ends at its lap or episode end.
     """
-    cfg = EnvConfig.from_kwargs(lighting=False, **env_kwargs)
+    cfg = EnvConfig.from_kwargs(**{**env_kwargs, **NOISE_FREE})
     names = list(tracks or road_names(cfg, split))
     if is_torcs(cfg):
         drives = [(name, TORCS_DIRECTION) for name in names]

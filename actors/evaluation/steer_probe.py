@@ -32,7 +32,7 @@ from actors.evaluation.critic_probe import load_probed
 from actors.evaluation.main import eval_env_kwargs
 from actors.evaluation.road_gap import cell, checkpoint_tool, roads
 from common.config.agent import ScaleConfig, shaped_reward, step_sizes
-from common.config.env import OFF_CENTRE, EnvConfig
+from common.config.env import NOISE_FREE, OFF_CENTRE, EnvConfig
 from common.config.run import RunConfig
 from common.networks import phi
 
@@ -148,7 +148,7 @@ def ddpg_reward(scale: ScaleConfig, v_max: float):
 
 def sim_on_test_laps(cfg: RunConfig) -> LaneDriveSim:
     """One car per test road and direction, at each lap's start, as the run's evaluator drives them."""
-    env = EnvConfig.from_kwargs(lighting=False, **eval_env_kwargs(cfg))
+    env = EnvConfig.from_kwargs(**{**eval_env_kwargs(cfg), **NOISE_FREE})
     drives = [(name, d) for name in roads(cfg)["test"] for d in cfg.eval.directions]
     sim = LaneDriveSim(env, len(drives))
     rng = np.random.default_rng(0)

@@ -11,7 +11,7 @@ import numpy as np
 from actors.envs.sim import LaneDriveSim
 from actors.envs.topdown import SIZE, render_topdown
 from actors.evaluation.evaluate import PolicyFn
-from common.config.env import EnvConfig
+from common.config.env import NOISE_FREE, EnvConfig
 
 CONTROL_HZ = 10
 
@@ -31,7 +31,7 @@ def record_lap(
     policy: PolicyFn, track: str, direction: str = "ccw", every: int = 3, max_steps: int = 1200, **env_kwargs
 ) -> tuple[list[np.ndarray], bool]:
     """Frames of one noise-free lap (every `every`-th step) from the start line, and whether it was completed."""
-    sim = LaneDriveSim(EnvConfig.from_kwargs(lighting=False, **env_kwargs), 1)
+    sim = LaneDriveSim(EnvConfig.from_kwargs(**{**env_kwargs, **NOISE_FREE}), 1)
     sim.reset(0, np.random.default_rng(0), {"track": track, "direction": direction, "random_start": False})
     frames, lapped = [], False
     for step in range(max_steps):

@@ -45,6 +45,9 @@ class VehicleConfig:
     """Control period, s (10 Hz, as the paper)."""
 
 
+NOISE_FREE = {"lighting": False, "gust_rate": 0.0}  # what every evaluation drive sets: no training randomisation
+
+
 @dataclass
 class EnvConfig:
     """LaneDrive-v0: a lane-keeping car with a front camera on closed roads."""
@@ -63,6 +66,11 @@ class EnvConfig:
     """Start at a random place on the lap with a small random offset; False starts at s=0, centred."""
     lighting: bool = True
     """Randomise brightness and contrast per episode."""
+    gust_rate: float = 0.0
+    """Training only (LaneDrive): chance per car and step of a heading kick of up to `gust_yaw`, so
+    that recoveries from off the centre stay in the replay; evaluation drives never gust. 0: none."""
+    gust_yaw: float = 0.15
+    """The kick's largest size, rad (uniform in +-gust_yaw)."""
     camera_height: float = 1.5
     """Height of the level front camera, m: the top image row sees 40x as far ahead."""
     damage: DamageConfig = field(default_factory=DamageConfig)
@@ -101,6 +109,12 @@ class EnvConfig:
             raise ValueError(f"env.camera_height must be in [0.5, 3] m, got {self.camera_height}")
         if self.max_steps < 1:
             raise ValueError(f"env.max_steps must be >= 1, got {self.max_steps}")
+        if not 0.0 <= self.gust_rate <= 1.0:
+            raise ValueError(f"env.gust_rate must be in [0, 1], got {self.gust_rate}")
+        if not 0.0 <= self.gust_yaw <= 0.5:
+            raise ValueError(f"env.gust_yaw must be in [0, 0.5] rad, got {self.gust_yaw}")
+        if self.gust_rate and self.id != "LaneDrive-v0":
+            raise ValueError("env.gust_rate: gusts are LaneDrive's only (TORCS drives without)")
         for name in ("gap_fraction", "fade_fraction"):
             if not 0.0 <= getattr(self.damage, name) <= 1.0:
                 raise ValueError(f"env.damage.{name} must be in [0, 1], got {getattr(self.damage, name)}")
