@@ -43,8 +43,8 @@ def offsets(policy, **evaluate_kwargs) -> dict:
     k_all = np.stack(curvatures)
     straight, outside, side = [], [], {}
     for i, drive in enumerate(drives):
-        side.setdefault(drive["direction"], []).append(float(np.mean(drive["trace"]["alpha"])))
         alpha = drive["trace"]["alpha"]
+        side.setdefault(drive["direction"], []).append(float(np.mean(alpha)))
         k = k_all[: len(alpha), i]
         bend = np.abs(k) >= STRAIGHT
         if (~bend).any():  # a drive that left the road in its first bend has no straight

@@ -86,8 +86,12 @@ def drive_online(acting: Acting, cfg: RunConfig) -> dict | None:
     (`eval.online_too`) and the weights carried an average; else None."""
     if acting.online is None or not acting.has_average:
         return None
-    policy = network_policy(acting.online, acting.lowdim)
-    return summary(evaluate(policy, cfg.eval.split, tuple(cfg.eval.directions), **eval_env_kwargs(cfg)))
+    return summary(drive_evaluated_roads(network_policy(acting.online, acting.lowdim), cfg))
+
+
+def drive_evaluated_roads(policy, cfg: RunConfig) -> list[dict]:
+    """The evaluated roads (`eval.split`, `eval.directions`) driven once by `policy`."""
+    return evaluate(policy, cfg.eval.split, tuple(cfg.eval.directions), **eval_env_kwargs(cfg))
 
 
 def evaluator_role(ctx) -> None:
@@ -117,7 +121,7 @@ def run_evaluator(cfg: RunConfig, t, run_dir: str | Path, stop: threading.Event)
                 continue
             version = acting.version  # the policy evaluated now (newer broadcasts wait in the inbox)
             policy = network_policy(acting.policy, acting.lowdim)
-            results = evaluate(policy, cfg.eval.split, tuple(cfg.eval.directions), **eval_env_kwargs(cfg))
+            results = drive_evaluated_roads(policy, cfg)
             mean, val = summary(results), validate(policy, cfg)
             online = drive_online(acting, cfg)
             for key, value in mean.items():
