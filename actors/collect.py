@@ -179,7 +179,8 @@ def collect(cfg, root: str | Path, show_progress: bool = True) -> dict:
     _refuse_repeat(root, cfg.seed)
     env_kwargs = asdict(cfg.env)
     env_kwargs.pop("id")
-    env_kwargs.update(track=c.split, direction="random", random_start=True)
+    # no gusts: the random walk is the collection's own exploration (the paper's); gusts are the online learner's
+    env_kwargs.update(track=c.split, direction="random", random_start=True, gust_rate=0.0)
     meta = {"controller": "random_walk", "action_noise": c.action_noise, "env": env_kwargs, "split": c.split}
     DatasetWriter(root, "init", meta=meta)
     quotas = [c.transitions // c.workers + (w < c.transitions % c.workers) for w in range(c.workers)]

@@ -12,6 +12,7 @@ ckpt-<updates>.pt, the policy that gvf-eval reads.
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import logging
 import time
@@ -88,12 +89,23 @@ def learn_representation(run: RunConfig, dataset: Dataset, ckpt_dir: Path, metri
     return state
 
 
+PAPER_REWARD = {"offset_weight": 1.0, "crash_penalty": 0.0}  # BCQ's reward is the dataset's, scaled
+
+
+def unshaped(run: RunConfig, overrides: list[str]) -> RunConfig:
+    """`run` with the scale's online reward shaping (`scale=small` sets a crash penalty) back at the
+    paper's reward, which BCQ keeps; a value asked for in `overrides` stays, for train_offline to refuse."""
+    asked = {o.split("=", 1)[0].lstrip("+~") for o in overrides}
+    keep = {name: paper for name, paper in PAPER_REWARD.items() if f"scale.{name}" not in asked}
+    return dataclasses.replace(run, scale=dataclasses.replace(run.scale, **keep))
+
+
 def train_offline(run: RunConfig, out_dir: str | Path, show_progress: bool = True) -> Path:
     """Train `offline.method` from `offline.dataset`; returns the policy checkpoint's path."""
     o, agent, scale = run.offline, run.agent, run.scale
     out_dir = Path(out_dir)
     ckpt_dir = Path(o.checkpoint_dir) if Path(o.checkpoint_dir).is_absolute() else out_dir / o.checkpoint_dir
-    for name, paper in (("offset_weight", 1.0), ("crash_penalty", 0.0)):  # BCQ's reward is the dataset's, scaled
+    for name, paper in PAPER_REWARD.items():
         if getattr(scale, name) != paper:
             raise ValueError(
                 f"scale.{name}={getattr(scale, name)} is not applied offline (BCQ keeps the logged reward)"
@@ -148,6 +160,7 @@ def task(cfg) -> None:
     run, _, _ = to_objects(cfg)
     logging.basicConfig(level=logging.INFO, format="%(asctime)s %(name)s %(levelname)s %(message)s")
     out_dir = Path(HydraConfig.get().runtime.output_dir)
+    run = unshaped(run, list(HydraConfig.get().overrides.task))
     path = train_offline(run, out_dir, show_progress=run.progress)
     print(f"policy: {path}\nevaluate it: gvf-eval checkpoint={path}")
 

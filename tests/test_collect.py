@@ -69,6 +69,7 @@ def test_gvf_collect_runs_workers_into_one_dataset_and_refuses_a_repeated_seed(t
     assert "collected 150 transitions" in done.stdout
     ds = Dataset.open(out)
     assert len(ds) == 150 and {s["name"].split("-")[1] for s in ds.shards} == {"s5w0", "s5w1"}
+    assert ds.meta["env"]["gust_rate"] == 0.0  # the training env gusts (lever G); the random walk drives without
     again = subprocess.run(args, capture_output=True, text=True, timeout=300)
     assert again.returncode != 0 and "already holds data collected with seed=5" in again.stderr
     assert len(Dataset.open(out)) == 150

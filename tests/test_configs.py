@@ -26,6 +26,22 @@ def test_root_defaults():
     assert run.agent.gammas == [0.0, 0.5, 0.9, 0.95, 0.97]
 
 
+def test_the_small_scale_trains_with_lever_g_and_the_paper_scale_keeps_the_papers_ddpg():
+    small = compose_run()
+    s = small.scale
+    assert (s.mirror_actor, s.crash_penalty, s.crash_memory, s.td3_actor_delay, s.td3_target_min_weight) == (
+        True,
+        300.0,
+        3000,
+        4,
+        0.5,
+    )
+    assert small.env.gust_rate == 0.02 and compose_run(["env=lanedrive_procedural"]).env.gust_rate == 0.02
+    paper = compose_run(["scale=paper"]).scale
+    assert not paper.td3 and not paper.mirror_actor and paper.crash_penalty == 0.0 and paper.crash_memory == 0
+    assert compose_run(["env=torcs"]).env.gust_rate == 0.0  # TORCS refuses gusts
+
+
 @pytest.mark.parametrize(
     "override, field",
     [("actor.num_envs=many", "num_envs"), ("env.lane_widht=3", "lane_widht"), ("env.direction=up", "direction")],
@@ -46,7 +62,7 @@ def test_bad_values_are_refused_naming_the_field(override, field):
         ("scale.lr_actor_decay_updates=-1", "lr_actor_decay_updates"),
         ("scale.lr_actor_final=0", "lr_actor_final"),
         ("scale.crash_steps=0", "crash_steps"),
-        ("scale.crash_memory_actor=false", "crash_memory_actor"),
+        ("scale.crash_memory=0 scale.crash_memory_actor=false", "crash_memory_actor"),
         ("scale=paper scale.actor_min_q=true", "actor_min_q"),
         ("learner.rho_at=router", "rho_at"),
         ("learner.weights_dtype=int8", "weights_dtype"),

@@ -222,7 +222,8 @@ def test_critic_without_the_last_action_ignores_phis_tail_and_reads_the_action()
 def test_advantage_critic_is_the_value_at_the_policys_action_and_moves_with_the_action_elsewhere():
     agent, scale = load("gvf_ddpg", "small")
     torch.manual_seed(0)
-    nets = make_networks(agent, dataclasses.replace(scale, critic_advantage=True))
+    # the plain actor: the mirror actor's steering bias cancels by construction, so it gets no gradient
+    nets = make_networks(agent, dataclasses.replace(scale, critic_advantage=True, mirror_actor=False))
     critic, actor = nets.critic, nets.actor
     assert isinstance(critic, AdvantageCritic)
     n_phi = nets.policy.gvf.n_predictions + 3

@@ -161,3 +161,14 @@ def test_gvf_offline_refuses_reward_shaping_it_would_not_apply(override, tmp_pat
     with pytest.raises(ValueError, match=override.split("=")[0]):
         train_offline(run, tmp_path)
     assert not any(tmp_path.iterdir())  # refused before anything was written
+
+
+def test_gvf_offline_drops_the_small_scales_crash_penalty_but_keeps_one_asked_for():
+    from learner.offline_main import unshaped
+    from tests.helpers import compose_run
+
+    small = compose_run(["scale=small"])
+    assert small.scale.crash_penalty > 0  # lever G's recipe shapes the online reward
+    assert unshaped(small, ["scale=small"]).scale.crash_penalty == 0.0
+    asked = compose_run(["scale=small", "scale.crash_penalty=10"])
+    assert unshaped(asked, ["scale=small", "scale.crash_penalty=10"]).scale.crash_penalty == 10.0
