@@ -68,16 +68,34 @@ class PilotNetTrunk(nn.Module):
 
 
 class GVFNetwork(nn.Module):
-    """v^tau(s; theta): one prediction per (cumulant, gamma) from frames, speed, last action."""
+    """v^tau(s; theta): one prediction per (cumulant, gamma) from frames, speed, last action.
 
-    def __init__(self, channels: Sequence[int], hidden: Sequence[int], n_predictions: int):
+    `odd` makes every prediction odd under the left-right mirror by construction, v(s) = (f(s) -
+    f(Ms)) / 2 with Ms the frames flipped and the last steering negated: alpha and beta negate under
+    the mirror and tau mirrors with the last action, so the true values are odd; learned without it
+    they are odd only as far as the mirrored minibatches taught them. A buffer, so that a checkpoint
+    made without it is refused."""
+
+    def __init__(self, channels: Sequence[int], hidden: Sequence[int], n_predictions: int, odd: bool = False):
         super().__init__()
         self.trunk = PilotNetTrunk(channels)
         self.head = mlp(self.trunk.out_dim + LOW_DIM, hidden, n_predictions)
         self.n_predictions = n_predictions
+        self.register_buffer("mirror_last", torch.tensor([-1.0, 1.0]) if odd else None)
+
+    def _raw(self, image: Tensor, speed: Tensor, last_action: Tensor) -> Tensor:
+        return self.head(torch.cat([self.trunk(image), speed, last_action], -1))
 
     def forward(self, image: Tensor, speed: Tensor, last_action: Tensor) -> Tensor:
-        return self.head(torch.cat([self.trunk(image), speed, last_action], -1))
+        if self.mirror_last is None:
+            return self._raw(image, speed, last_action)
+        both = self._raw(  # one pass over the batch and its mirror image
+            torch.cat([image, image.flip(-1)]),
+            torch.cat([speed, speed]),
+            torch.cat([last_action, last_action * self.mirror_last]),
+        )
+        direct, mirrored = both.chunk(2)
+        return (direct - mirrored) * 0.5
 
 
 class BehaviourNetwork(nn.Module):
@@ -274,6 +292,9 @@ def phi(predictions: Tensor, speed: Tensor, last_action: Tensor) -> Tensor:
     return torch.cat([predictions, speed, last_action], -1)
 
 
+ODD_CUMULANTS = {"alpha", "beta"}  # lane centeredness and road angle negate under the left-right mirror
+
+
 def phi_mirror_sign(n_predictions: int) -> Tensor:
     """Sign of each entry of phi under a left-right mirror: every prediction is of alpha or beta
     (both negate), speed stays, of the last action the steering negates and the target speed stays."""
@@ -339,11 +360,17 @@ def _check(agent: AgentConfig) -> None:
         raise ValueError(f"representation must be one of {REPRESENTATIONS}, got {agent.representation!r}")
 
 
+def make_gvf(agent: AgentConfig, scale: ScaleConfig) -> GVFNetwork:
+    if scale.mirror_gvf and not set(agent.cumulants) <= ODD_CUMULANTS:
+        raise ValueError(f"scale.mirror_gvf needs cumulants that negate under the mirror {sorted(ODD_CUMULANTS)}")
+    return GVFNetwork(scale.conv_channels, scale.gvf_hidden, n_predictions(agent), odd=scale.mirror_gvf)
+
+
 def make_policy(agent: AgentConfig, scale: ScaleConfig) -> Policy:
     """The acting network alone, as actors build it to load the broadcast weights."""
     _check(agent)
     if agent.representation == "predictive":
-        gvf = GVFNetwork(scale.conv_channels, scale.gvf_hidden, n_predictions(agent))
+        gvf = make_gvf(agent, scale)
         sign = phi_mirror_sign(gvf.n_predictions) if scale.mirror_actor else None
         actor = BranchedActor(
             gvf.n_predictions + LOW_DIM,

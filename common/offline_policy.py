@@ -17,7 +17,7 @@ from torch import Tensor, nn
 
 from common.bcq_networks import BCQPolicy, flat_observation, make_bcq_networks
 from common.config.agent import AgentConfig, ScaleConfig
-from common.networks import GVFNetwork, n_predictions, phi
+from common.networks import GVFNetwork, make_gvf, n_predictions, phi
 
 METHODS = ("gvf_bcq", "e2e_bcq")
 
@@ -57,5 +57,5 @@ def make_offline_policy(method: str, agent: AgentConfig, scale: ScaleConfig, bui
     build = dict(build)
     n_samples = build.pop("n_samples", 10)
     vae, actor, critic = make_bcq_networks(**build)
-    gvf = GVFNetwork(scale.conv_channels, scale.gvf_hidden, n_predictions(agent)) if method == "gvf_bcq" else None
+    gvf = make_gvf(agent, scale) if method == "gvf_bcq" else None
     return OfflinePolicy(method, BCQPolicy(vae, actor, critic, n_samples), gvf)

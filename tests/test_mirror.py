@@ -82,3 +82,29 @@ def test_small_mirrors_half_the_paper_scale_none_and_a_bad_fraction_is_refused()
     assert compose_run(["scale=paper"]).scale.mirror == 0.0
     with pytest.raises(ValueError, match="scale.mirror"):
         compose_run(["scale.mirror=1.5"])
+
+
+def test_an_odd_gvf_negates_every_prediction_under_the_mirror_and_the_learner_trains_it(batch):
+    from common.networks import GVFNetwork, make_gvf
+
+    torch.manual_seed(0)
+    image, speed, last = batch["image"][:8], batch["speed"][:8], batch["last_action"][:8]
+    odd = GVFNetwork(TINY.conv_channels, [16], 4, odd=True)
+    mirrored_last = torch.cat([-last[:, :1], last[:, 1:]], -1)
+    assert torch.allclose(odd(image.flip(-1), speed, mirrored_last), -odd(image, speed, last), atol=1e-6)
+    plain = GVFNetwork(TINY.conv_channels, [16], 4)
+    plain.load_state_dict(odd.state_dict(), strict=False)  # the same weights, without the construction
+    assert not torch.allclose(plain(image.flip(-1), speed, mirrored_last), -plain(image, speed, last), atol=1e-3)
+    with pytest.raises(RuntimeError, match="mirror_last"):  # a checkpoint of the other kind is refused
+        plain.load_state_dict(odd.state_dict())
+    agent = AgentConfig(name="gvf_ddpg", representation="predictive", metrics_every=1)
+    with pytest.raises(ValueError, match="scale.mirror_gvf"):
+        make_gvf(dataclasses.replace(agent, cumulants=["alpha", "speed"]), dataclasses.replace(TINY, mirror_gvf=True))
+    core = LearningCore(agent, dataclasses.replace(TINY, mirror_gvf=True, warmup=100), seed=0)
+    assert core.nets.gvf.mirror_last is not None
+    core.add(collect(4, 60, seed=1).reshape(-1))
+    before = [p.detach().clone() for p in core.nets.gvf.parameters()]
+    for _ in range(3):
+        metrics = core.update()
+    assert np.isfinite(metrics["losses/td"]) and np.isfinite(metrics["losses/actor"])
+    assert any(not torch.equal(b, p) for b, p in zip(before, core.nets.gvf.parameters()))

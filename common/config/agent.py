@@ -109,6 +109,10 @@ class ScaleConfig:
     """GVF-DDPG's actor mirror-equivariant by construction (common.networks.BranchedActor's
     mirror_sign): steering odd, target speed even under negating every prediction and the last
     steering; the image baselines are unaffected (their input would need flipped frames)."""
+    mirror_gvf: bool = False
+    """The GVFs' predictions odd under the left-right mirror by construction (common.networks.
+    GVFNetwork's `odd`: (f(s) - f(Ms)) / 2, two trunk passes): the representation the mirror actor
+    reads holds no side either. False: odd only as far as the mirrored minibatches taught them."""
     steer_increment: float = 0.0
     """GVF-DDPG's actor outputs a change of the steering: steering = clip(last steering +
     steer_increment * output, -1, 1) (common.networks.BranchedActor), an integrating controller;
