@@ -361,6 +361,7 @@ def _check(agent: AgentConfig) -> None:
 
 
 def make_gvf(agent: AgentConfig, scale: ScaleConfig) -> GVFNetwork:
+    """The GVFs as the scale builds them: odd under the mirror with `scale.mirror_gvf`."""
     if scale.mirror_gvf and not set(agent.cumulants) <= ODD_CUMULANTS:
         raise ValueError(f"scale.mirror_gvf needs cumulants that negate under the mirror {sorted(ODD_CUMULANTS)}")
     return GVFNetwork(scale.conv_channels, scale.gvf_hidden, n_predictions(agent), odd=scale.mirror_gvf)
