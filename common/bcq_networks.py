@@ -24,7 +24,7 @@ from collections.abc import Sequence
 import torch
 from torch import Tensor, nn
 
-from common.networks import ACTION_DIM, IMAGE_SHAPE, LOW_DIM, PilotNetTrunk, mlp
+from common.layers import ACTION_DIM, IMAGE_SHAPE, LOW_DIM, PilotNetTrunk, mlp
 
 HIDDEN = (256,)
 IMAGE_SIZE = IMAGE_SHAPE[0] * IMAGE_SHAPE[1] * IMAGE_SHAPE[2]

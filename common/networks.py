@@ -1,17 +1,14 @@
 """Networks of GVF-DDPG and its baselines (paper, appendix "GVF-DDPG Training" and
 "Baseline DDPG Training"), shared by the learner and the actors.
 
-- `PilotNetTrunk`: Bojarski et al. 2016 conv layers (24, 36, 48 5x5 stride 2; 64, 64 3x3)
-  on the two stacked uint8 grayscale frames, scaled to [0, 1].
+- `PilotNetTrunk` (common/layers.py): Bojarski et al. 2016 conv layers on the two frames.
 - `GVFNetwork` v^tau(s): trunk, then [features, speed, last action] -> FC 512, 384 -> one
   linear output per (cumulant, gamma), cumulant-major (all gammas of alpha, then of beta).
 - `BehaviourNetwork` g(a, s): same trunk, [features, speed, last action, action] -> FC 512,
   256 -> 1 logit; g = sigmoid(logit), so g / (1 - g) = exp(logit) (paper eq. 6).
 - `BranchedActor`: one branch per action (steering, target speed), FC 256, 128, 1 each; the
   last layer of each branch U(-1e-3, 1e-3), bias 0; linear output clipped to [-1, 1].
-- `BranchedCritic`: "same structure as the policy network" with the action as input and a
-  linear output. The paper does not say how two branches make one Q; here each branch sees
-  the whole input and Q is the sum of the two branch outputs.
+- `BranchedCritic`, `AdvantageCritic` (common/critics.py): Q from [x, a], branch outputs summed.
 - DDPG-Image / DDPG-LowDim: `ImageEncoder` (trunk + speed + last action, and for LowDim
   alpha, beta through a 12-unit ReLU branch) under a `BranchedActor` (512, 256 branches)
   or a one-branch `BranchedCritic` (512, 256, 1), as the appendix describes.
@@ -29,42 +26,8 @@ import torch
 from torch import Tensor, nn
 
 from common.config.agent import REPRESENTATIONS, SQUASHES, AgentConfig, ScaleConfig, actor_squash
-
-IMAGE_SHAPE = (2, 64, 128)  # (frames t and t-1, height, width), the simulator contract
-ACTION_DIM = 2  # steering, target speed
-LOW_DIM = 3  # speed (1) + last action (2), joined after the conv trunk
-PILOTNET_LAYERS = ((5, 2), (5, 2), (5, 2), (3, 1), (3, 1))  # (kernel, stride)
-
-
-def mlp(in_dim: int, hidden: Sequence[int], out_dim: int, norm: bool = False) -> nn.Sequential:
-    """ReLU hidden layers, linear output; with `norm` a LayerNorm before each ReLU."""
-    layers: list[nn.Module] = []
-    for width in hidden:
-        layers += [nn.Linear(in_dim, width), *([nn.LayerNorm(width)] if norm else []), nn.ReLU()]
-        in_dim = width
-    layers.append(nn.Linear(in_dim, out_dim))
-    return nn.Sequential(*layers)
-
-
-class PilotNetTrunk(nn.Module):
-    """Conv trunk on uint8 frames (B, 2, 64, 128) -> flat features (B, out_dim)."""
-
-    def __init__(self, channels: Sequence[int], image_shape: Sequence[int] = IMAGE_SHAPE):
-        super().__init__()
-        layers: list[nn.Module] = []
-        in_channels = image_shape[0]
-        for out_channels, (kernel, stride) in zip(channels, PILOTNET_LAYERS, strict=True):
-            layers += [nn.Conv2d(in_channels, out_channels, kernel, stride), nn.ReLU(inplace=True)]
-            in_channels = out_channels
-        # channels_last: oneDNN's (and cuDNN's) preferred layout, ~1.5x faster here on CPU;
-        # Flatten still reads (C, H, W) in logical order, so features do not change
-        self.layers = nn.Sequential(*layers, nn.Flatten()).to(memory_format=torch.channels_last)
-        with torch.no_grad():
-            self.out_dim = self.layers(torch.zeros(1, *image_shape)).shape[1]
-
-    def forward(self, image: Tensor) -> Tensor:
-        x = image.contiguous(memory_format=torch.channels_last).float().div_(255.0)
-        return self.layers(x)
+from common.critics import AdvantageCritic, BranchedCritic
+from common.layers import ACTION_DIM, LOW_DIM, PilotNetTrunk, mlp
 
 
 class GVFNetwork(nn.Module):
@@ -169,80 +132,6 @@ class BranchedActor(nn.Module):
             steer = (x[..., -2:-1] + self.steer_increment * out[..., :1]).clamp(-1.0, 1.0)
             out = torch.cat([steer, out[..., 1:]], -1)
         return out
-
-
-class BranchedCritic(nn.Module):
-    """Q(x, a): sum of `n_branches` MLP branches on [x, a]; linear output (B, 1).
-
-    `reads` keeps only x's first features (GVF-DDPG's `scale.critic_last_action=false` leaves phi's
-    last action out). `norm` puts a LayerNorm before each hidden ReLU (Ball et al. 2023): |Q| is then bounded by the
-    last layer's weights wherever the input goes, so the actor cannot climb an extrapolation."""
-
-    def __init__(
-        self,
-        in_dim: int,
-        hidden: Sequence[int],
-        n_actions: int = ACTION_DIM,
-        n_branches: int = 2,
-        norm: bool = False,
-        reads: int | None = None,
-    ):
-        super().__init__()
-        self.reads = in_dim if reads is None else reads  # x's leading features read; the rest are ignored
-        self.branches = nn.ModuleList(mlp(self.reads + n_actions, hidden, 1, norm) for _ in range(n_branches))
-
-    def forward(self, x: Tensor, action: Tensor) -> Tensor:
-        xa = torch.cat([x[..., : self.reads], action], -1)
-        return torch.stack([branch(xa) for branch in self.branches], 0).sum(0)
-
-
-class _Unregistered:
-    """A module held outside the parent's registry: deepcopy (TD3's twin) shares it, state_dict,
-    parameters() and reset_parameters() leave it alone."""
-
-    def __init__(self, module: nn.Module):
-        self.module = module
-
-    def __deepcopy__(self, memo: dict) -> _Unregistered:
-        return self
-
-
-class AdvantageCritic(nn.Module):
-    """Q(x, a) = V(x) + A(x, a) - A(x, pi(x)): a dueling critic (Wang et al. 2016) centred on the
-    current policy, so V is the policy's value and A only the action's part of Q, as advantage
-    updating does for fine control periods (Tallec et al. 2019, where a plain Q's action slope
-    fades with the step). pi is `centre_on`'s actor, run without gradient; `reads` as BranchedCritic.
-    Written here: torchrl has no continuous-action dueling critic."""
-
-    def __init__(
-        self,
-        in_dim: int,
-        hidden: Sequence[int],
-        n_actions: int = ACTION_DIM,
-        norm: bool = False,
-        reads: int | None = None,
-    ):
-        super().__init__()
-        self.reads = in_dim if reads is None else reads
-        self.value = mlp(self.reads, hidden, 1, norm)
-        self.advantage = mlp(self.reads + n_actions, hidden, 1, norm)
-        self._policy: _Unregistered | None = None
-
-    def centre_on(self, policy: nn.Module) -> AdvantageCritic:
-        self._policy = _Unregistered(policy)
-        return self
-
-    def forward(self, x: Tensor, action: Tensor) -> Tensor:
-        if self._policy is None:
-            raise RuntimeError("AdvantageCritic needs centre_on(actor) before its first call")
-        with torch.no_grad():
-            reference = self._policy.module(x)
-        read = x[..., : self.reads]
-        return (
-            self.value(read)
-            + self.advantage(torch.cat([read, action], -1))
-            - self.advantage(torch.cat([read, reference], -1))
-        )
 
 
 class ImageEncoder(nn.Module):

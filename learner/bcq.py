@@ -39,7 +39,7 @@ from torchrl.objectives import LossModule, SoftUpdate, ValueEstimators
 from torchrl.objectives.utils import dispatch_value_estimator
 
 from common.bcq_networks import HIDDEN, VAE, BCQPolicy, Perturbation, TwinQ, make_bcq_networks, select_action
-from common.networks import ACTION_DIM
+from common.layers import ACTION_DIM
 
 
 class BCQLoss(LossModule):

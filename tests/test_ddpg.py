@@ -7,7 +7,8 @@ import pytest
 import torch
 from tensordict import TensorDict
 
-from common.networks import BranchedActor, BranchedCritic
+from common.critics import BranchedCritic
+from common.networks import BranchedActor
 from learner.ddpg import DDPG
 from learner.metrics import steering_diagnostics
 

@@ -12,12 +12,11 @@ from hydra import compose, initialize_config_dir
 from omegaconf import OmegaConf
 
 from common.config.agent import AgentConfig, ScaleConfig, register
+from common.critics import AdvantageCritic, BranchedCritic
+from common.layers import PilotNetTrunk
 from common.networks import (
-    AdvantageCritic,
     BranchedActor,
-    BranchedCritic,
     GVFNetwork,
-    PilotNetTrunk,
     make_networks,
     make_policy,
     phi_mirror_sign,

@@ -118,7 +118,7 @@ class ScaleConfig:
     steer_increment * output, -1, 1) (common.networks.BranchedActor), an integrating controller;
     0: the paper's absolute steering. The image baselines are unaffected."""
     critic_norm: bool = False
-    """A LayerNorm before each hidden ReLU of DDPG's critic (Ball et al. 2023; common.networks.
+    """A LayerNorm before each hidden ReLU of DDPG's critic (Ball et al. 2023; common.critics.
     BranchedCritic): Q bounded wherever the actor moves the action; False: the paper's plain MLP."""
     critic_last_action: bool = True
     """False: GVF-DDPG's critic reads phi without its last action (the predictions and the speed):
@@ -126,7 +126,7 @@ class ScaleConfig:
     the critic can credit the steering to either input and the actor's dQ/da is left the residual;
     the actor keeps it. The image baselines are unaffected."""
     critic_advantage: bool = False
-    """True: GVF-DDPG's critic is V(phi) + A(phi, a) - A(phi, pi(phi)) (common.networks.AdvantageCritic),
+    """True: GVF-DDPG's critic is V(phi) + A(phi, a) - A(phi, pi(phi)) (common.critics.AdvantageCritic),
     so the action's small part of Q has its own head; False: the paper's Q(phi, a). The image
     baselines are unaffected."""
     reward_scale: float = 1.0
