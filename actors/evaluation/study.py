@@ -4,6 +4,9 @@ every table and figure; checkpoints stay in the scratch folder and are never com
 
     python -m actors.evaluation.study --variants gvf_ddpg ddpg_image --seeds 0 1 2 3 4 --minutes 15
     python -m actors.evaluation.compare docs/results/runs
+    python -m actors.evaluation.study --variants gvf_ddpg --seeds 1 --out docs/results/levers/x -- scale.crash_penalty=150
+
+Hydra overrides for every run go last, after `--` (otherwise `--seeds` reads them as seeds).
 
 A job whose summary exists is skipped, so an interrupted study continues where it stopped (the
 interrupted job starts again; its partial folder is moved aside as `<job>.interrupted-<time>`; a
@@ -216,7 +219,7 @@ def main() -> None:
     parser.add_argument("--out", type=Path, default=Path("docs/results/runs"), help="where summaries go (commit these)")
     parser.add_argument("--work", type=Path, default=Path("runs/study"), help="scratch: run folders, checkpoints")
     parser.add_argument("--adopt", type=Path, default=None, help="summarize this finished run (one variant and seed)")
-    parser.add_argument("overrides", nargs="*", help="extra Hydra overrides for every run")
+    parser.add_argument("overrides", nargs="*", help="extra Hydra overrides for every run, after `--`")
     args = parser.parse_args()
     if args.adopt is not None:
         if len(args.variants) != 1 or len(args.seeds) != 1:
