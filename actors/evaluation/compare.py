@@ -126,9 +126,10 @@ def curve_figures(per: dict[str, list[dict]], out: Path) -> list[Path]:
             grid = np.array([np.interp(steps, [e["updates"] for e in s], [metric(e) for e in s]) for s in series])
             mean, std = grid.mean(0), grid.std(0)
             ax.plot(steps, mean, label=f"{variant} ({len(series)})")
-            ax.fill_between(steps, mean - std, mean + std, alpha=0.2)
+            # the band kept within the seeds' own range: a lap fraction never shows below 0 or above 1
+            ax.fill_between(steps, np.maximum(mean - std, grid.min(0)), np.minimum(mean + std, grid.max(0)), alpha=0.2)
         ax.set_xlabel("learner updates")
-        ax.set_title(f"{label}, mean ± std over seeds", fontsize=9)
+        ax.set_title(f"{label}, mean ± std over seeds (within their range)", fontsize=9)
         ax.legend(fontsize=7)
         fig.tight_layout()
         path = out / f"curve_{key}.png"

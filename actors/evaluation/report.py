@@ -136,7 +136,8 @@ def learning_curves(run_dirs: list[Path], path: Path) -> Path | None:
         )
         mean, std = grid.mean(0), grid.std(0)
         ax.plot(steps, mean)
-        ax.fill_between(steps, mean - std, mean + std, alpha=0.3)
+        # the band kept within the runs' own range: a lap fraction never shows below 0 or above 1
+        ax.fill_between(steps, np.maximum(mean - std, grid.min(0)), np.minimum(mean + std, grid.max(0)), alpha=0.3)
         ax.set_xlabel("learner updates")
         ax.set_title(f"{label} ({len(series)} runs)", fontsize=9)
     fig.tight_layout()
