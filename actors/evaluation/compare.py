@@ -20,7 +20,7 @@ matplotlib.use("Agg")  # files only; no display on servers
 import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 
-from actors.evaluation.report import COLUMNS  # noqa: E402
+from actors.evaluation.report import COLUMNS, std_band  # noqa: E402
 
 CURVES = [
     ("reward_per_s", "test reward /s"),
@@ -124,10 +124,8 @@ def curve_figures(per: dict[str, list[dict]], out: Path) -> list[Path]:
                 else (lambda e: e["mean"][key])
             )
             grid = np.array([np.interp(steps, [e["updates"] for e in s], [metric(e) for e in s]) for s in series])
-            mean, std = grid.mean(0), grid.std(0)
-            ax.plot(steps, mean, label=f"{variant} ({len(series)})")
-            # the band kept within the seeds' own range: a lap fraction never shows below 0 or above 1
-            ax.fill_between(steps, np.maximum(mean - std, grid.min(0)), np.minimum(mean + std, grid.max(0)), alpha=0.2)
+            ax.plot(steps, grid.mean(0), label=f"{variant} ({len(series)})")
+            std_band(ax, steps, grid, alpha=0.2)
         ax.set_xlabel("learner updates")
         ax.set_title(f"{label}, mean ± std over seeds (within their range)", fontsize=9)
         ax.legend(fontsize=7)

@@ -115,6 +115,13 @@ def histogram_figure(results: list[dict], path: Path, title: str) -> Path:
     return path
 
 
+def std_band(ax, steps, grid: np.ndarray, alpha: float) -> None:
+    """mean +- std over the rows of `grid`, kept within the rows' own range: a lap fraction never
+    shows below 0 or above 1."""
+    mean, std = grid.mean(0), grid.std(0)
+    ax.fill_between(steps, np.maximum(mean - std, grid.min(0)), np.minimum(mean + std, grid.max(0)), alpha=alpha)
+
+
 def learning_curves(run_dirs: list[Path], path: Path) -> Path | None:
     """Test score and jerkiness against training updates, mean and std over runs (eval.jsonl of each run)."""
     series = []
@@ -134,10 +141,8 @@ def learning_curves(run_dirs: list[Path], path: Path) -> Path | None:
         grid = np.array(
             [[np.interp(x, [e["updates"] for e in s], [e["mean"][key] for e in s]) for x in steps] for s in series]
         )
-        mean, std = grid.mean(0), grid.std(0)
-        ax.plot(steps, mean)
-        # the band kept within the runs' own range: a lap fraction never shows below 0 or above 1
-        ax.fill_between(steps, np.maximum(mean - std, grid.min(0)), np.minimum(mean + std, grid.max(0)), alpha=0.3)
+        ax.plot(steps, grid.mean(0))
+        std_band(ax, steps, grid, alpha=0.3)
         ax.set_xlabel("learner updates")
         ax.set_title(f"{label} ({len(series)} runs)", fontsize=9)
     fig.tight_layout()
