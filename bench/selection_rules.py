@@ -1,5 +1,5 @@
 """Which evaluation each validation-ranking rule would have selected, and its test laps, over the
-eval.jsonl files of finished runs: the measurement behind `actors.evaluation.periodic.selection_key`.
+eval.jsonl files of finished runs: the measurement behind `common.selection.selection_key`.
 
     python bench/selection_rules.py RUN_DIR [RUN_DIR ...]     # last line: JSON
 

@@ -29,7 +29,6 @@ from typing import Any
 import torch
 
 PATTERN = re.compile(r"^ckpt-(\d{9})\.pt$")
-BEST = "best-policy.pt"
 
 
 def policy_entries(policy: dict, agent: Any, scale: Any, updates: int) -> dict[str, Any]:

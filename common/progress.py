@@ -1,7 +1,8 @@
 """The live view of `gvf-train`: what the learner last wrote to progress.json (env steps/s or
 "paused (rate limit)", updates/s, episodes, return, rho_bar, policy-version lag), the periodic
-evaluator's last and best evaluation from eval.jsonl (laps of the held-out roads), the roles,
-and at the end a short summary with the command that evaluates the run."""
+evaluator's last evaluation and its validation-selected one from eval.jsonl (laps of the
+held-out roads), the roles, and at the end a short summary with the commands that evaluate the
+run's newest checkpoint and its validation-selected policy (checkpoints/best-policy.pt)."""
 
 from __future__ import annotations
 
@@ -11,6 +12,8 @@ from pathlib import Path
 from rich.console import Console
 from rich.live import Live
 from rich.table import Table
+
+from common.selection import BEST, selected
 
 FIELDS = [
     ("updates/s", "updates_per_s", "{:,.1f}"),
@@ -58,11 +61,6 @@ def describe(record: dict | None) -> str:
     return f"{laps}/{n} laps, {mean['reward_per_s']:.2f} reward/s at {record['updates']:,} updates"
 
 
-def best(records: list[dict]) -> dict | None:
-    """The evaluation with the most test laps (then reward per second): shown, never used to select."""
-    return max(records, key=lambda r: (r["mean"]["lap_completed"], r["mean"]["reward_per_s"]), default=None)
-
-
 class Progress:
     """`with Progress(run_dir): ... progress.update(children)` refreshes a table in place."""
 
@@ -100,7 +98,7 @@ class Progress:
         t.add_row("lost / rejected chunks", f"{p.get('lost_chunks', 0)} / {p.get('rejected', 0)}")
         records = read_evaluations(self.run_dir / "eval.jsonl")
         t.add_row("last evaluation", describe(records[-1] if records else None))
-        t.add_row("best evaluation", describe(best(records)))
+        t.add_row("validation-selected", describe(selected(records)))
         t.add_row("roles", ", ".join(state(c) for c in children))
         return t
 
@@ -119,8 +117,11 @@ class Progress:
         ]
         if records:
             lines.append(f"  last evaluation: {describe(records[-1])}")
-            lines.append(f"  best evaluation: {describe(best(records))}")
-        lines.append(f"  evaluate it:  gvf-eval checkpoint={checkpoint_dir}")
+        lines.append(f"  evaluate the newest checkpoint:  gvf-eval checkpoint={checkpoint_dir}")
+        if (checkpoint_dir / BEST).exists():
+            # the policy to ship: 9 of 10 lapped all and centred where 6 of 10 newest did (docs/results.md)
+            lines.append(f"  validation-selected policy: {describe(selected(records))}")
+            lines.append(f"  evaluate it:  gvf-eval checkpoint={checkpoint_dir / BEST}")
         text = "\n".join(lines)
         if self.enabled:
             self.console.print(text)

@@ -8,10 +8,10 @@ import numpy as np
 import pytest
 
 from actors.evaluation.evaluate import evaluate
-from actors.evaluation.periodic import better, selection_key
 from actors.evaluation.policies import checkpoint_policy, kinematic_policy
 from common.config.env import VehicleConfig
 from common.launch import train
+from common.selection import better, selection_key
 from tests.helpers import BIN, TINY, compose_run
 
 FIGURES = ("lane_centeredness.png", "distributions.png")

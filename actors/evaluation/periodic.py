@@ -29,22 +29,9 @@ from actors.weights_client import WeightsClient
 from common import checkpoint, wire
 from common.config.run import RunConfig
 from common.keys import Keys
+from common.selection import BEST, better
 
 log = logging.getLogger(__name__)
-BEST = checkpoint.BEST
-
-
-def selection_key(mean: dict) -> tuple:
-    """How validations rank: most laps, then the least time near the lane's edge, then reward per
-    second. Ranking by reward per second right after laps picked the fastest of the lapping
-    policies, the riskiest: in run C (docs/results.md) one that lapped all 12 validation laps
-    but 8 of 12 test laps, where the near-out tie-break picks one that laps all 12."""
-    return mean["lap_completed"], -mean.get("near_out_of_lane", 0.0), mean["reward_per_s"]
-
-
-def better(mean: dict, best: dict | None) -> bool:
-    """Strictly better than `best` by `selection_key` (so the first of equals is kept)."""
-    return best is None or selection_key(mean) > selection_key(best)
 
 
 def validation_tracks(names: list[str]) -> list[str]:

@@ -1,0 +1,31 @@
+"""How the periodic evaluator ranks validations, shared by the evaluator that keeps
+checkpoints/best-policy.pt and the live view that names it (common.progress), so both pick the
+same evaluation."""
+
+from __future__ import annotations
+
+BEST = "best-policy.pt"
+"""File name, in a run's checkpoints folder, of the policy of the best validation so far."""
+
+
+def selection_key(mean: dict) -> tuple:
+    """How validations rank: most laps, then the least time near the lane's edge, then reward per
+    second. Ranking by reward per second right after laps picked the fastest of the lapping
+    policies, the riskiest: in run C (docs/results.md) one that lapped all 12 validation laps
+    but 8 of 12 test laps, where the near-out tie-break picks one that laps all 12."""
+    return mean["lap_completed"], -mean.get("near_out_of_lane", 0.0), mean["reward_per_s"]
+
+
+def better(mean: dict, best: dict | None) -> bool:
+    """Strictly better than `best` by `selection_key` (so the first of equals is kept)."""
+    return best is None or selection_key(mean) > selection_key(best)
+
+
+def selected(records: list[dict]) -> dict | None:
+    """The eval.jsonl record whose validation ranks first (the first of equals), the one whose
+    policy best-policy.pt holds; records without a validation are passed over."""
+    best = None
+    for record in records:
+        if record.get("validation") and better(record["validation"], best and best["validation"]):
+            best = record
+    return best
