@@ -13,6 +13,8 @@ import argparse
 import json
 from pathlib import Path
 
+from common.selection import selected
+
 RULES = {
     "laps_then_reward": lambda v: (v["lap_completed"], v["reward_per_s"]),
     "laps_then_near_out_then_reward": lambda v: (v["lap_completed"], -v["near_out_of_lane"], v["reward_per_s"]),
@@ -23,10 +25,7 @@ RULES = {
 def picks(evaluations: list[dict]) -> dict:
     out = {}
     for name, key in RULES.items():
-        best = None
-        for e in evaluations:
-            if best is None or key(e["validation"]) > key(best["validation"]):
-                best = e
+        best = selected(evaluations, key)
         out[name] = {
             "updates": best["updates"],
             "test_laps": round(best["mean"]["lap_completed"] * len(best["drives"])),

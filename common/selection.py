@@ -21,11 +21,13 @@ def better(mean: dict, best: dict | None) -> bool:
     return best is None or selection_key(mean) > selection_key(best)
 
 
-def selected(records: list[dict]) -> dict | None:
-    """The eval.jsonl record whose validation ranks first (the first of equals), the one whose
-    policy best-policy.pt holds; records without a validation are passed over."""
+def selected(records: list[dict], key=selection_key) -> dict | None:
+    """The eval.jsonl record whose validation ranks first by `key` (the first of equals): with the
+    default key, the one whose policy best-policy.pt holds; records without a validation are
+    passed over."""
     best = None
     for record in records:
-        if record.get("validation") and better(record["validation"], best and best["validation"]):
+        v = record.get("validation")
+        if v and (best is None or key(v) > key(best["validation"])):
             best = record
     return best
