@@ -19,6 +19,7 @@ from common.config.run import ActorConfig
 from common.density import log_mu_hat
 from common.networks import BehaviourNetwork, make_policy
 from common.wire import AVERAGE, BEHAVIOUR, RejectCounter, TransitionChunk, Weights, WireError
+from common.wire_quant import floats
 from common.wire_rules import check_weights
 
 
@@ -79,10 +80,11 @@ class Acting:
         WireError('weights') before anything is loaded (`common.wire_rules.check_weights`)."""
         if weights.epoch == self.epoch and weights.version <= self.version:
             return False
-        online = {k: v for k, v in weights.tensors.items() if not k.startswith((BEHAVIOUR, AVERAGE))}
-        average = {k[len(AVERAGE) :]: v for k, v in weights.tensors.items() if k.startswith(AVERAGE)}
+        tensors = floats(weights.tensors, weights.quant)  # codes -> float32 only for a set it adopts
+        online = {k: v for k, v in tensors.items() if not k.startswith((BEHAVIOUR, AVERAGE))}
+        average = {k[len(AVERAGE) :]: v for k, v in tensors.items() if k.startswith(AVERAGE)}
         policy = average if self.deployed and average else online
-        behaviour = {k[len(BEHAVIOUR) :]: v for k, v in weights.tensors.items() if k.startswith(BEHAVIOUR)}
+        behaviour = {k[len(BEHAVIOUR) :]: v for k, v in tensors.items() if k.startswith(BEHAVIOUR)}
         check_weights(dataclasses.replace(weights, tensors=policy), self.policy.state_dict())
         keep_online = self.online is not None and policy is average
         if keep_online:

@@ -40,7 +40,7 @@ Usage: python bench/scale.py [--actors 1 16 64 256] [--topology router mesh] [--
        [--seconds 10] [--warmup 2] [--broadcasts 20] [--broadcast-every 0.5] [--per-process 32]
        [--memory-minutes 0] [--memory-every 10] [--memory-rho learner|actor]
        [hydra overrides, e.g. learner.ingest_batch=16; learner.weights_dtype=float16 broadcasts
-       half the bytes]
+       half the bytes, uint8 about a quarter]
 The last line printed is one JSON object: {"router": {N: figures}, "mesh": {N: ...}, "memory":
 {topology: ...} (with --memory-minutes), "params": {...}}; one line per N goes to stderr as it ends.
 """
@@ -77,7 +77,6 @@ from bench.support.scale_procs import (  # noqa: E402
 from bench.support.transport_procs import episode_payloads  # noqa: E402
 from bench.support.transport_summary import learner_parameters  # noqa: E402
 from bench.transport import compose  # noqa: E402
-from common import wire  # noqa: E402
 
 LATENCY_P99_TARGET_MS = 100.0
 """DESIGN.md: 256 emulated actors on one learner, 0 chunks lost, weight latency p99 <= 100 ms."""
@@ -213,9 +212,7 @@ def main(argv: list[str] | None = None) -> dict:
         try:
             learner_cfg, actor_cfg, routers = start_topology(ctx, cfg.transport, topology, stop)
             learner = Learner(cfg, learner_cfg, routers, tmp.name)
-            weights_bytes = {
-                phase: len(wire.encode(wire.Weights(0, learner.tensors[log_mu]))) for phase, log_mu in PHASES.items()
-            }
+            weights_bytes = {phase: len(learner.encoded(log_mu, version=0)) for phase, log_mu in PHASES.items()}
             results[topology] = {}
             for n in actors:
                 minutes = args.memory_minutes if n == actors[-1] else 0.0

@@ -23,6 +23,7 @@ import msgpack
 import numpy as np
 
 from common import wire_checks as chk
+from common import wire_quant
 from common.wire_checks import KINDS, Limits, WireError
 from common.wire_messages import (
     AVERAGE,
@@ -62,6 +63,7 @@ DEFAULT_LIMITS = Limits()
 CONTROL_COMMANDS = ("stop", "pause", "resume")
 U8, F4, B1 = "|u1", "<f4", "|b1"
 WEIGHT_DTYPES = ("<f2", "<f4", "<f8")
+F4_MAX = float(np.finfo(np.float32).max)
 
 # msgpack raises these (all ValueError subclasses in msgpack 1.x, UnicodeDecodeError for bad str)
 _MSGPACK_ERRORS = (
@@ -101,7 +103,11 @@ _FIELDS = {
     "tracks": frozenset({"version", "steps"}),
     "control": frozenset({"command", "reason"}),
 }
-_OPTIONAL = {"control": frozenset({"expires_s"}), "transitions": frozenset({"log_mu", "behaviour_version"})}
+_OPTIONAL = {
+    "control": frozenset({"expires_s"}),
+    "transitions": frozenset({"log_mu", "behaviour_version"}),
+    "weights": frozenset({"quant"}),
+}
 
 
 def _int(value: Any) -> Any:
@@ -137,13 +143,10 @@ def _to_map(msg: Message) -> dict:
             arr = np.asarray(value)
             # keep the float width; any other dtype goes out as-is and is refused as 'dtype'
             tensors[name] = _array_map(arr, arr.dtype.newbyteorder("<").str)
-        return {
-            "v": SCHEMA_VERSION,
-            "type": "weights",
-            "version": _int(msg.version),
-            "epoch": _int(msg.epoch),
-            "tensors": tensors,
-        }
+        m = {"v": SCHEMA_VERSION, "type": "weights", "version": _int(msg.version), "epoch": _int(msg.epoch)}
+        if msg.quant:
+            m["quant"] = {name: _array_map(params, F4) for name, params in msg.quant.items()}
+        return {**m, "tensors": tensors}
     if isinstance(msg, TrackTable):
         steps = {track: _int(n) for track, n in msg.steps.items()}
         return {"v": SCHEMA_VERSION, "type": "tracks", "version": _int(msg.version), "steps": steps}
@@ -191,11 +194,24 @@ def _weights_from_map(m: dict, limits: Limits) -> Weights:
     tensors_map = chk.field(m, "tensors", dict)
     if len(tensors_map) > limits.max_tensors:
         raise WireError("size", f"{len(tensors_map)} tensors > {limits.max_tensors}")
-    tensors = {}
+    quant_map = chk.field(m, "quant", dict) if "quant" in m else {}
+    if unknown := set(quant_map) - set(tensors_map):
+        raise WireError("schema", f"weights: quant for tensors not sent, e.g. {sorted(unknown)[:3]}")
+    tensors, quant = {}, {}
     for name, spec in tensors_map.items():
         chk.text(name, "tensor name", 256, allow_empty=False)
-        tensors[name] = chk.array({name: spec}, name, WEIGHT_DTYPES, None)
-    return Weights(version=chk.integer(m, "version"), tensors=tensors, epoch=chk.integer(m, "epoch"))
+        if name not in quant_map:
+            tensors[name] = chk.array({name: spec}, name, WEIGHT_DTYPES, None)
+            continue
+        codes = chk.array({name: spec}, name, U8, None)
+        if not wire_quant.quantized(codes.shape):
+            raise WireError("shape", f"quantized tensor {name!r} has shape {codes.shape}: codes need 2 or more dims")
+        params = chk.array(quant_map, name, F4, (codes.shape[0], 2))
+        # |code x scale + offset| <= 256 max(|scale|, |offset|): two reductions bound every value
+        if not (params[:, 0].min() > 0 and float(np.abs(params).max()) * 256 <= F4_MAX):
+            raise WireError("value", f"quant {name!r}: a scale <= 0, or values beyond float32")
+        tensors[name], quant[name] = codes, params  # validated here; the receiver converts what it loads
+    return Weights(version=chk.integer(m, "version"), tensors=tensors, epoch=chk.integer(m, "epoch"), quant=quant)
 
 
 def _tracks_from_map(m: dict, limits: Limits) -> TrackTable:

@@ -83,6 +83,9 @@ class Weights:
     epoch: int = 0
     """The publishing learner's incarnation: a resumed learner counts versions from its
     checkpoint again, so a new epoch tells receivers to accept a lower version."""
+    quant: dict[str, np.ndarray] = field(default_factory=dict)
+    """Tensors sent as uint8 codes (`learner.weights_dtype=uint8`): name -> (scale, offset) per row.
+    `decode` validates them; `common.wire_quant.floats` gives the values, where a receiver loads them."""
 
 
 @dataclass(frozen=True)

@@ -24,6 +24,7 @@ import torch
 from common import checkpoint, wire
 from common.config.run import RunConfig
 from common.keys import Keys
+from common.wire_quant import for_broadcast
 from learner.core import LearningCore
 from learner.ingestor import Ingestor
 from learner.rate_limit import RateLimiter
@@ -39,14 +40,6 @@ def resolve_device(name: str) -> str:
     if name == "auto":
         return "cuda" if torch.cuda.is_available() else "cpu"
     return name
-
-
-def narrowed(t: np.ndarray, dtype: str) -> np.ndarray:
-    """`t` in the broadcast precision `dtype` (learner.weights_dtype); a tensor beyond float16's
-    range stays float32 (receivers take either) rather than turning into inf."""
-    if dtype == "float16" and np.abs(t).max(initial=0.0) <= np.finfo(np.float16).max:
-        return t.astype(np.float16)
-    return t
 
 
 class LearnerService:
@@ -134,8 +127,8 @@ class LearnerService:
         tensors = {name: v.detach().cpu().numpy() for name, v in state.items()}
         if not all(np.isfinite(t).all() for t in tensors.values()):
             raise FloatingPointError(f"non-finite acting weights at update {self.core.updates}: not published")
-        tensors = {name: narrowed(t, self.lc.weights_dtype) for name, t in tensors.items()}
-        payload = wire.encode(wire.Weights(self.core.updates, tensors, epoch=self.epoch))
+        tensors, quant = for_broadcast(tensors, self.lc.weights_dtype)
+        payload = wire.encode(wire.Weights(self.core.updates, tensors, epoch=self.epoch, quant=quant))
         self.weights_srv.update(payload)
         self.weights_out.put(payload)
 

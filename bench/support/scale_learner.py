@@ -10,11 +10,10 @@ import queue
 import time
 from collections import defaultdict
 
-import numpy as np
-
 from bench.support.acks import Acks
 from bench.support.scale_procs import usage
 from common import wire
+from common.wire_quant import for_broadcast
 
 ACK_WAIT_S = 5.0
 """After the last broadcast of a phase, how long acks still count (later ones are missed)."""
@@ -33,14 +32,14 @@ class Learner:
         self.service.open()
         self.acks = mp.get_context("spawn").Queue()
         self.version = 0
-        # the Weights of each phase: the acting policy, and the discriminator where actors need it
+        # (tensors, quant) of each phase's Weights in the learner's broadcast precision
+        # (learner.weights_dtype): the acting policy, and the discriminator where actors need it
         core = self.service.core
-        dtype = np.dtype(cfg.learner.weights_dtype)  # learner.weights_dtype=float16: half the bytes
         self.tensors = {
-            log_mu: {
-                k: v.detach().cpu().numpy().astype(dtype)
-                for k, v in core.broadcast_state_dict(with_behaviour=log_mu).items()
-            }
+            log_mu: for_broadcast(
+                {k: v.detach().cpu().numpy() for k, v in core.broadcast_state_dict(with_behaviour=log_mu).items()},
+                cfg.learner.weights_dtype,
+            )
             for log_mu in (False, True)
         }
 
@@ -48,10 +47,15 @@ class Learner:
         self.service.run_log.close()
         self.transport.close()
 
+    def encoded(self, log_mu: bool, version: int) -> bytes:
+        """The Weights payload of the phase with (True) or without the discriminator."""
+        tensors, quant = self.tensors[log_mu]
+        return wire.encode(wire.Weights(version, tensors, epoch=self.service.epoch, quant=quant))
+
     def publish(self, log_mu: bool) -> tuple[int, float]:
         """Encode and put the next Weights version; its version and time.time() just before the put."""
         self.version += 1
-        payload = wire.encode(wire.Weights(self.version, self.tensors[log_mu], epoch=self.service.epoch))
+        payload = self.encoded(log_mu, self.version)
         at = time.time()
         self.service.weights_out.put(payload)
         return self.version, at

@@ -15,6 +15,7 @@ from omegaconf import MISSING
 from common.config.agent import AgentConfig, ScaleConfig
 from common.config.env import EnvConfig
 from common.config.transport import ZENOH_WAIT_BEFORE_CLOSE_S, TransportConfig
+from common.wire_quant import WEIGHTS_DTYPES
 
 
 @dataclass
@@ -108,7 +109,8 @@ class LearnerConfig:
     """Where log mu_hat of rho = tau / mu_hat is computed at insert: 'learner' (Algorithm 1), or 'actor':
     the weights carry the discriminator and actors send log mu_hat in each chunk (GVF variants only)."""
     weights_dtype: str = "float32"
-    """Precision of the broadcast weights: 'float32', or 'float16' (half the bytes to every actor; actors act in float32)."""
+    """Precision of the broadcast weights: 'float32', 'float16' (half the bytes to every actor), or 'uint8'
+    (a quarter: 8-bit codes with a scale per row, `common.wire_quant`); actors act in float32."""
 
 
 @dataclass
@@ -232,7 +234,6 @@ def register() -> None:
 
 
 RHO_AT = ("learner", "actor")
-WEIGHTS_DTYPES = ("float32", "float16")
 
 
 def to_objects(cfg: Any) -> tuple[RunConfig, AgentConfig, ScaleConfig]:
