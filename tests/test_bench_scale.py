@@ -70,6 +70,7 @@ def test_bench_scale_prints_its_figures_as_json():
         for n, case in result[topology].items():
             print(f"scale {topology} N={n}:", json.dumps({k: v for k, v in case.items() if k != "phases"}))
     assert result["params"]["actors"] == [1, 4] and result["params"]["topology"] == ["router", "mesh"]
+    assert result["params"]["mesh_configs"]  # the mesh ran with deploy/zenoh/router-mesh-{a,b}.json5
     for topology in ("router", "mesh"):
         for n in (1, 4):
             case = result[topology][str(n)]

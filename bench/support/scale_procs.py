@@ -26,7 +26,7 @@ from common.config.transport import TransportConfig
 from common.keys import Keys
 from common.transport.inbox import BoundedInbox
 
-MESH_CONFIGS = Path(__file__).resolve().parents[1] / "deploy" / "zenoh"
+MESH_CONFIGS = Path(__file__).resolve().parents[2] / "deploy" / "zenoh"
 """router-mesh-a.json5 / router-mesh-b.json5 there, when present, configure the mesh's routers."""
 TOPOLOGIES = ("router", "mesh")
 
