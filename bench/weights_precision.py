@@ -31,10 +31,10 @@ METRICS = ("lap_completed", "offcenteredness", "near_out_of_lane", "reward_per_s
 def drive(path: str) -> dict:
     state = checkpoint.load(path)
     agent, scale = known_config(AgentConfig, state["agent"]), known_config(ScaleConfig, state["scale"])
-    floats = {name: t.detach().cpu().numpy() for name, t in state["policy"].items()}
+    float32 = {name: t.detach().cpu().numpy() for name, t in state["policy"].items()}
     out = {}
     for dtype in WEIGHTS_DTYPES:
-        tensors, quant = for_broadcast(floats, dtype)
+        tensors, quant = for_broadcast(float32, dtype)
         payload = wire.encode(wire.Weights(1, tensors, epoch=1, quant=quant))
         acting = Acting(agent, scale, ActorConfig(), 1, seed=0, deployed=True)
         if not acting.load(wire.decode(payload, expect=wire.Weights)):
