@@ -201,17 +201,33 @@ def _weights_from_map(m: dict, limits: Limits) -> Weights:
     for name, spec in tensors_map.items():
         chk.text(name, "tensor name", 256, allow_empty=False)
         if name not in quant_map:
-            tensors[name] = chk.array({name: spec}, name, WEIGHT_DTYPES, None)
+            tensors[name] = chk.array({name: spec}, name, WEIGHT_DTYPES, None, finite=False)
             continue
         codes = chk.array({name: spec}, name, U8, None)
         if not wire_quant.quantized(codes.shape):
             raise WireError("shape", f"quantized tensor {name!r} has shape {codes.shape}: codes need 2 or more dims")
-        params = chk.array(quant_map, name, F4, (codes.shape[0], 2))
-        # |code x scale + offset| <= 256 max(|scale|, |offset|): two reductions bound every value
-        if not (params[:, 0].min() > 0 and float(np.abs(params).max()) * 256 <= F4_MAX):
-            raise WireError("value", f"quant {name!r}: a scale <= 0, or values beyond float32")
-        tensors[name], quant[name] = codes, params  # validated here; the receiver converts what it loads
+        tensors[name], quant[name] = codes, chk.array(quant_map, name, F4, (codes.shape[0], 2), finite=False)
+    _check_weight_values(tensors, quant)  # validated here; the receiver converts what it loads
     return Weights(version=chk.integer(m, "version"), tensors=tensors, epoch=chk.integer(m, "epoch"), quant=quant)
+
+
+def _check_weight_values(tensors: dict[str, np.ndarray], quant: dict[str, np.ndarray]) -> None:
+    """Every float tensor finite, every quant scale > 0 and |code x scale + offset| <= 256
+    max(|scale|, |offset|) within float32, checked over all tensors at once: every actor decodes
+    every broadcast, and per-tensor numpy calls cost it more than the bytes (bench/scale.py).
+    Only a refused message pays for finding which tensor failed."""
+    floats = [t.ravel() for name, t in tensors.items() if name not in quant]
+    params = np.concatenate(list(quant.values())) if quant else np.ones((1, 2), np.float32)
+    if (not floats or np.isfinite(np.concatenate(floats)).all()) and (
+        params[:, 0].min() > 0 and float(np.abs(params).max()) * 256 <= F4_MAX  # NaN fails both
+    ):
+        return
+    for name, t in tensors.items():
+        for what, values in ((name, t), (f"quant {name}", quant.get(name))):
+            if values is not None and values.dtype.kind == "f" and not np.isfinite(values).all():
+                raise WireError("nonfinite", f"array {what!r} has NaN or inf")
+        if name in quant and not (quant[name][:, 0].min() > 0 and float(np.abs(quant[name]).max()) * 256 <= F4_MAX):
+            raise WireError("value", f"quant {name!r}: a scale <= 0, or values beyond float32")
 
 
 def _tracks_from_map(m: dict, limits: Limits) -> TrackTable:

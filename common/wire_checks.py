@@ -39,6 +39,8 @@ INT_MAX = 2**63 - 1
 MAX_NDIM = 8
 MAX_DIM = 2**31 - 1
 MAX_VIRTUAL_BYTES = 2**40
+_ARRAY_KEYS = frozenset({"dtype", "shape", "data"})
+_NP_DTYPES: dict[str, np.dtype] = {}
 
 
 class WireError(ValueError):
@@ -125,21 +127,30 @@ def name(m: dict, key: str) -> str:
     return value
 
 
-def array(m: dict, key: str, dtype: str | tuple[str, ...], shape: tuple | None) -> np.ndarray:
+def array(m: dict, key: str, dtype: str | tuple[str, ...], shape: tuple | None, finite: bool = True) -> np.ndarray:
     """A {"dtype", "shape", "data"} map -> read-only ndarray of that dtype and shape.
 
-    `shape` entries of None accept any length; shape None accepts any shape.
+    `shape` entries of None accept any length; shape None accepts any shape. `finite=False`
+    leaves the NaN/inf check of a float array to the caller (who checks many at once).
     """
     spec = field(m, key, dict)
-    if set(spec) != {"dtype", "shape", "data"}:
+    if spec.keys() != _ARRAY_KEYS:
         raise WireError("schema", f"array {key!r} needs exactly dtype, shape, data; got {sorted(spec)}")
     dt = spec["dtype"]
     allowed = (dtype,) if isinstance(dtype, str) else dtype
     if not isinstance(dt, str) or dt not in allowed:
         raise WireError("dtype", f"array {key!r} dtype {dt!r}, expected one of {allowed}")
     dims = spec["shape"]
-    if not isinstance(dims, list) or any(type(d) is not int or not 0 <= d <= MAX_DIM for d in dims):
+    # one loop checks the dims and multiplies them (Python ints: a hostile shape cannot overflow);
+    # every actor decodes each broadcast's tens of arrays, so this function's overhead counts
+    count, nonzero = 1, 1
+    if not isinstance(dims, list):
         raise WireError("shape", f"array {key!r} shape must be a list of ints in [0, {MAX_DIM}], got {dims!r}")
+    for d in dims:
+        if type(d) is not int or not 0 <= d <= MAX_DIM:
+            raise WireError("shape", f"array {key!r} shape must be a list of ints in [0, {MAX_DIM}], got {dims!r}")
+        count *= d
+        nonzero *= d or 1
     data = spec["data"]
     if not isinstance(data, (bytes, bytearray, memoryview)):
         raise WireError("schema", f"array {key!r} data must be bin, got {type(data).__name__}")
@@ -147,21 +158,20 @@ def array(m: dict, key: str, dtype: str | tuple[str, ...], shape: tuple | None) 
         len(dims) != len(shape) or any(want is not None and got != want for got, want in zip(dims, shape))
     ):
         raise WireError("shape", f"array {key!r} shape {dims}, expected {shape}")
-    itemsize = np.dtype(dt).itemsize
-    # Python ints: a hostile shape cannot overflow the product
-    count, nonzero = 1, 1
-    for d in dims:
-        count *= d
-        nonzero *= max(d, 1)
+    np_dtype = _NP_DTYPES.get(dt)  # dt is one of `allowed`: the cache stays small
+    if np_dtype is None:
+        np_dtype = _NP_DTYPES[dt] = np.dtype(dt)
+    itemsize = np_dtype.itemsize
     if nonzero * itemsize > MAX_VIRTUAL_BYTES:
         # numpy refuses even an empty array whose other dimensions multiply past its limits
         raise WireError("shape", f"array {key!r} shape {dims} is absurd")
-    nbytes = memoryview(data).nbytes
+    nbytes = len(data) if isinstance(data, bytes) else memoryview(data).nbytes
     if count * itemsize != nbytes:
         raise WireError("shape", f"array {key!r} shape {dims} x {itemsize} B != {nbytes} data bytes")
-    arr = np.frombuffer(data, dtype=np.dtype(dt), count=count).reshape(dims)
-    if arr.dtype.kind == "f" and not np.isfinite(arr).all():
+    arr = np.frombuffer(data, dtype=np_dtype, count=count).reshape(dims)
+    kind = np_dtype.kind
+    if finite and kind == "f" and not np.isfinite(arr).all():
         raise WireError("nonfinite", f"array {key!r} has NaN or inf")
-    if arr.dtype.kind == "b" and arr.size and arr.view(np.uint8).max() > 1:
+    if kind == "b" and arr.size and arr.view(np.uint8).max() > 1:
         raise WireError("value", f"bool array {key!r} has bytes other than 0 and 1")
     return arr

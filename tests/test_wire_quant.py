@@ -7,7 +7,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from common.wire import Weights, decode, encode
+from common.wire import Weights, WireError, decode, encode
 from common.wire_quant import dequantize, floats, for_broadcast, quantize, quantized
 from tests.wire_helpers import as_map, assert_kind, pack
 
@@ -116,3 +116,19 @@ def test_codes_need_a_matrix_and_a_float_tensor_with_params_is_refused():
     m["tensors"]["sign"] = {"dtype": "|u1", "shape": [3], "data": bytes(3)}
     m["quant"]["sign"] = {"dtype": "<f4", "shape": [3, 2], "data": np.ones((3, 2), np.float32).tobytes()}
     assert_kind(pack(m), "shape")
+
+
+@pytest.mark.parametrize("dtype", ["float32", "float16", "uint8"])
+@pytest.mark.parametrize("value", [np.nan, np.inf])
+def test_one_non_finite_value_among_all_the_tensors_is_refused_and_named(dtype, value):
+    """decode checks the float tensors' finiteness all at once; the refusal still names the tensor."""
+    sent, quant = for_broadcast(tensors(), dtype)
+    for name in [n for n in sent if n not in quant]:
+        m = as_map(Weights(1, sent, epoch=1, quant=quant))
+        spec = m["tensors"][name]
+        bad = np.frombuffer(spec["data"], spec["dtype"]).copy()
+        bad[-1] = value
+        spec["data"] = bad.tobytes()
+        with pytest.raises(WireError, match=name) as info:
+            decode(pack(m), expect=Weights)
+        assert info.value.kind == "nonfinite"
