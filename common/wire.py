@@ -204,8 +204,10 @@ def _weights_from_map(m: dict, limits: Limits) -> Weights:
             tensors[name] = chk.array({name: spec}, name, WEIGHT_DTYPES, None, finite=False)
             continue
         codes = chk.array({name: spec}, name, U8, None)
-        if not wire_quant.quantized(codes.shape):
-            raise WireError("shape", f"quantized tensor {name!r} has shape {codes.shape}: codes need 2 or more dims")
+        if not wire_quant.quantized(codes.shape) or codes.size == 0:  # an empty one: no row to scale
+            raise WireError(
+                "shape", f"quantized tensor {name!r} has shape {codes.shape}: codes need 2 or more dims, none 0"
+            )
         tensors[name], quant[name] = codes, chk.array(quant_map, name, F4, (codes.shape[0], 2), finite=False)
     _check_weight_values(tensors, quant)  # validated here; the receiver converts what it loads
     return Weights(version=chk.integer(m, "version"), tensors=tensors, epoch=chk.integer(m, "epoch"), quant=quant)

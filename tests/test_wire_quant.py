@@ -116,6 +116,11 @@ def test_codes_need_a_matrix_and_a_float_tensor_with_params_is_refused():
     m["tensors"]["sign"] = {"dtype": "|u1", "shape": [3], "data": bytes(3)}
     m["quant"]["sign"] = {"dtype": "<f4", "shape": [3, 2], "data": np.ones((3, 2), np.float32).tobytes()}
     assert_kind(pack(m), "shape")
+    for rows, cols in ((0, 512), (3, 0)):  # empty codes: once a ValueError no receiver caught
+        m = quantized_map()
+        m["tensors"][FC] = {"dtype": "|u1", "shape": [rows, cols], "data": b""}
+        m["quant"][FC] = {"dtype": "<f4", "shape": [rows, 2], "data": np.ones((rows, 2), np.float32).tobytes()}
+        assert_kind(pack(m), "shape")
 
 
 @pytest.mark.parametrize("dtype", ["float32", "float16", "uint8"])
