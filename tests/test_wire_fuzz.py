@@ -4,7 +4,10 @@ from __future__ import annotations
 
 import random
 
-from common.wire import WireError, decode, encode
+import numpy as np
+
+from common.wire import Weights, WireError, decode, encode
+from common.wire_quant import for_broadcast
 from tests.wire_helpers import VALID, as_map, make_chunk, pack
 
 
@@ -65,6 +68,8 @@ def _random_value(rng: random.Random):
             {},
             {"dtype": "<f4"},
             {"dtype": "<f4", "shape": [0, 2**40], "data": b""},
+            {"dtype": "|u1", "shape": [0, 3], "data": b""},
+            {"dtype": "<f4", "shape": [0, 2], "data": b""},
             {"a": {"b": {"c": []}}},
         ]
     )
@@ -88,8 +93,12 @@ def _structural_mutation(rng: random.Random, m: dict) -> dict:
 
 def test_fuzz_structure_only_wire_errors():
     rng = random.Random(99)
+    rows = np.linspace(-1.0, 1.0, 12, dtype=np.float32).reshape(3, 4)
+    tensors, quant = for_broadcast({"fc.weight": rows, "fc.bias": rows[0]}, "uint8")
+    quantized = Weights(3, tensors, epoch=1, quant=quant)
+    messages = [*VALID, quantized]
     for i in range(3000):
-        m = as_map(VALID[i % len(VALID)] if i % 2 else make_chunk(steps=2))
+        m = as_map(messages[i % len(messages)] if i % 2 else make_chunk(steps=2))
         for _ in range(rng.randint(1, 3)):
             m = _structural_mutation(rng, m)
         try:
