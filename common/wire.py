@@ -219,17 +219,22 @@ def _check_weight_values(tensors: dict[str, np.ndarray], quant: dict[str, np.nda
     every broadcast, and per-tensor numpy calls cost it more than the bytes (bench/scale.py).
     Only a refused message pays for finding which tensor failed."""
     floats = [t.ravel() for name, t in tensors.items() if name not in quant]
-    params = np.concatenate(list(quant.values())) if quant else np.ones((1, 2), np.float32)
     if (not floats or np.isfinite(np.concatenate(floats)).all()) and (
-        params[:, 0].min() > 0 and float(np.abs(params).max()) * 256 <= F4_MAX  # NaN fails both
+        not quant or _quant_params_ok(np.concatenate(list(quant.values())))
     ):
         return
     for name, t in tensors.items():
         for what, values in ((name, t), (f"quant {name}", quant.get(name))):
             if values is not None and values.dtype.kind == "f" and not np.isfinite(values).all():
                 raise WireError("nonfinite", f"array {what!r} has NaN or inf")
-        if name in quant and not (quant[name][:, 0].min() > 0 and float(np.abs(quant[name]).max()) * 256 <= F4_MAX):
+        if name in quant and not _quant_params_ok(quant[name]):
             raise WireError("value", f"quant {name!r}: a scale <= 0, or values beyond float32")
+
+
+def _quant_params_ok(params: np.ndarray) -> bool:
+    """Scales > 0 and |code x scale + offset| <= 256 max(|scale|, |offset|) within float32; a NaN
+    fails both comparisons. `params` has rows: empty codes are refused before."""
+    return bool(params[:, 0].min() > 0 and float(np.abs(params).max()) * 256 <= F4_MAX)
 
 
 def _tracks_from_map(m: dict, limits: Limits) -> TrackTable:
