@@ -88,9 +88,8 @@ class LearningCore:
         if self.predictive:
             self.gammas = expand_gammas(agent.gammas, len(agent.cumulants)).to(self.device)
             self.gvf_optimizer = torch.optim.Adam(self.nets.gvf.parameters(), lr=steps["lr_gvf"], fused=True)
-            self.behaviour_optimizer = torch.optim.Adam(
-                self.nets.behaviour.parameters(), lr=steps["lr_behaviour"], fused=True
-            )
+            behaviour = self.nets.behaviour.parameters()
+            self.behaviour_optimizer = torch.optim.Adam(behaviour, lr=steps["lr_behaviour"], fused=True)
             keys = ["phi"]
         else:
             keys = list(OBS_KEYS)
@@ -110,6 +109,7 @@ class LearningCore:
             actor_delay=scale.td3_actor_delay,
             lr_actor_decay_updates=scale.lr_actor_decay_updates,
             lr_actor_final=scale.lr_actor_final,
+            steer_slope_penalty=scale.critic_steer_penalty,
             actor_min_q=scale.actor_min_q,
             actor_on_crash_memory=scale.crash_memory_actor,
             target_min_weight=scale.td3_target_min_weight,

@@ -29,6 +29,11 @@ not at copies of old pre-crash states whose steep Q gradients would steer every 
 `target_min_weight` (an option with td3, 1 by default: TD3's minimum) bootstraps from a blend of the
 twin target critics, `learner.td3_target`.
 
+`steer_slope_penalty` (an option, 0 by default) adds lambda E[(dQ/d steering)^2] at the minibatch's
+actions to each critic's loss: measured, the critics' steering slope at off-centre states was ~10x
+the true one and pointed to the centre at chance (docs/results.md, the steering probe); a slope the
+data do not support then costs. Written here: torchrl's losses have no action-gradient penalty.
+
 `lr_actor_decay_updates` (an option, 0 by default) lowers the actor's step size linearly to
 `lr_actor_final` of it over that many updates, so that a policy found early moves less later.
 """
@@ -71,11 +76,15 @@ class DDPG:
         actor_min_q: bool = False,
         actor_on_crash_memory: bool = True,
         target_min_weight: float = 1.0,
+        steer_slope_penalty: float = 0.0,
     ):
         if actor_min_q and not td3:
             raise ValueError("actor_min_q needs td3 (twin critics)")
         self.actor, self.critic = actor, critic
         self.actor_min_q, self.actor_on_crash_memory = actor_min_q, actor_on_crash_memory
+        if steer_slope_penalty < 0:
+            raise ValueError(f"steer_slope_penalty must be >= 0, got {steer_slope_penalty}")
+        self.steer_slope_penalty = steer_slope_penalty
         self.td3, self.actor_delay, self.steps = td3, actor_delay, 0
         actor_module = TensorDictModule(actor, in_keys=list(actor_in_keys), out_keys=["action"])
         self.actor_module = actor_module
@@ -130,7 +139,27 @@ class DDPG:
         elif acted is not batch:
             loss = self.loss_module.actor_loss if self.td3 else self.loss_module.loss_actor
             out["loss_actor"] = loss(acted)[0]
+        if self.steer_slope_penalty:
+            out["loss_steer_slope"] = self.steer_slope_penalty * self.steer_slope_sq(batch)
+            out["loss_value"] = out["loss_value"] + out["loss_steer_slope"]
         return out["loss_actor"] + out["loss_value"], out
+
+    def steer_slope_sq(self, batch: TensorDictBase) -> Tensor:
+        """sum over the critics of mean (dQ/d steering)^2 at the minibatch's own actions, differentiable
+        in the critics' parameters (double backward); the actor takes no part."""
+        if self.td3:
+            qnet, stacked = self.loss_module.qvalue_network, self.loss_module.qvalue_network_params.unbind(0)
+        else:
+            qnet, stacked = self.loss_module.value_network, [self.loss_module.value_network_params]
+        td = batch.select(*qnet.in_keys).clone(False)
+        action = td["action"].detach().requires_grad_(True)
+        terms = []
+        for params in stacked:
+            with params.to_module(qnet):
+                q = qnet(td.clone(False).set("action", action))["state_action_value"]
+            (grad,) = torch.autograd.grad(q.sum(), action, create_graph=True)
+            terms.append(grad[:, 0].pow(2).mean())  # action 0 is the steering
+        return torch.stack(terms).sum()
 
     def actor_batch(self, batch: TensorDictBase) -> TensorDictBase:
         """The items the actor's loss averages over: all, or those not from the crash memory."""

@@ -90,7 +90,8 @@ def prediction_error(
 def ddpg_metrics(out: TensorDictBase) -> dict[str, float]:
     """DDPG's losses and Q statistics from its loss output (`learner.ddpg.DDPG.loss`)."""
     q = out["pred_value"].detach()
-    return {
+    penalty = {"losses/steer_slope": float(out["loss_steer_slope"])} if "loss_steer_slope" in out.keys() else {}
+    return penalty | {
         "losses/actor": float(out["loss_actor"].detach()),
         "losses/critic": float(out["loss_value"].detach()),
         "train/q_mean": float(q.mean()),

@@ -171,6 +171,8 @@ class ScaleConfig:
     """td3: the target bootstraps from w min + (1 - w) max of the twin target critics (learner.td3_target); 1: TD3's minimum."""
     actor_min_q: bool = False
     """td3: the actor maximises min(Q1, Q2) (as SAC) instead of TD3's Q1 (learner.ddpg)."""
+    critic_steer_penalty: float = 0.0
+    """lambda of lambda E[(dQ/d steering)^2] at the minibatch's actions, added to each critic's loss (learner.ddpg); 0: none, the paper."""
 
 
 SQUASHES = ("clip", "tanh")
@@ -240,6 +242,8 @@ def check_scale(scale: ScaleConfig) -> None:
         raise ValueError(f"scale.td3_target_min_weight must be in [0, 1], got {scale.td3_target_min_weight}")
     if scale.td3_target_min_weight != 1.0 and not scale.td3:
         raise ValueError("scale.td3_target_min_weight needs scale.td3=true (it blends the twin critics)")
+    if not scale.critic_steer_penalty >= 0.0:
+        raise ValueError(f"scale.critic_steer_penalty must be >= 0, got {scale.critic_steer_penalty}")
     if scale.td3_actor_delay < 1:
         raise ValueError(f"scale.td3_actor_delay must be >= 1, got {scale.td3_actor_delay}")
 
