@@ -110,6 +110,7 @@ class LearningCore:
             lr_actor_decay_updates=scale.lr_actor_decay_updates,
             lr_actor_final=scale.lr_actor_final,
             steer_slope_penalty=scale.critic_steer_penalty,
+            steer_slope_penalty_after=scale.critic_steer_penalty_after,
             actor_min_q=scale.actor_min_q,
             actor_on_crash_memory=scale.crash_memory_actor,
             target_min_weight=scale.td3_target_min_weight,
@@ -258,13 +259,8 @@ class LearningCore:
     @torch.no_grad()
     def _finite(self, total: Tensor) -> bool:
         """The loss and every gradient are finite (one host sync for all of them)."""
-        grads = [
-            p.grad
-            for opt in self._optimizers()
-            for group in opt.param_groups
-            for p in group["params"]
-            if p.grad is not None
-        ]
+        params = (p for opt in self._optimizers() for group in opt.param_groups for p in group["params"])
+        grads = [p.grad for p in params if p.grad is not None]
         return bool(torch.isfinite(total + torch.nn.utils.get_total_norm(grads)))
 
     def _representation_losses(self, uniform: TensorDictBase) -> dict[str, Tensor]:

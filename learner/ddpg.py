@@ -32,7 +32,8 @@ twin target critics, `learner.td3_target`.
 `steer_slope_penalty` (an option, 0 by default) adds lambda E[(dQ/d steering)^2] at the minibatch's
 actions to each critic's loss: measured, the critics' steering slope at off-centre states was ~10x
 the true one and pointed to the centre at chance (docs/results.md, the steering probe); a slope the
-data do not support then costs. Written here: torchrl's losses have no action-gradient penalty.
+data do not support then costs. `steer_slope_penalty_after` starts it after that many updates.
+Written here: torchrl's losses have no action-gradient penalty.
 
 `lr_actor_decay_updates` (an option, 0 by default) lowers the actor's step size linearly to
 `lr_actor_final` of it over that many updates, so that a policy found early moves less later.
@@ -77,6 +78,7 @@ class DDPG:
         actor_on_crash_memory: bool = True,
         target_min_weight: float = 1.0,
         steer_slope_penalty: float = 0.0,
+        steer_slope_penalty_after: int = 0,
     ):
         if actor_min_q and not td3:
             raise ValueError("actor_min_q needs td3 (twin critics)")
@@ -84,7 +86,7 @@ class DDPG:
         self.actor_min_q, self.actor_on_crash_memory = actor_min_q, actor_on_crash_memory
         if steer_slope_penalty < 0:
             raise ValueError(f"steer_slope_penalty must be >= 0, got {steer_slope_penalty}")
-        self.steer_slope_penalty = steer_slope_penalty
+        self.steer_slope_penalty, self.steer_slope_penalty_after = steer_slope_penalty, steer_slope_penalty_after
         self.td3, self.actor_delay, self.steps = td3, actor_delay, 0
         actor_module = TensorDictModule(actor, in_keys=list(actor_in_keys), out_keys=["action"])
         self.actor_module = actor_module
@@ -139,7 +141,7 @@ class DDPG:
         elif acted is not batch:
             loss = self.loss_module.actor_loss if self.td3 else self.loss_module.loss_actor
             out["loss_actor"] = loss(acted)[0]
-        if self.steer_slope_penalty:
+        if self.steer_slope_penalty and self.steps >= self.steer_slope_penalty_after:
             out["loss_steer_slope"] = self.steer_slope_penalty * self.steer_slope_sq(batch)
             out["loss_value"] = out["loss_value"] + out["loss_steer_slope"]
         return out["loss_actor"] + out["loss_value"], out

@@ -14,7 +14,7 @@ from learner.ddpg import DDPG
 from tests.test_td3_target import TINY
 
 
-def make(td3: bool, penalty: float) -> DDPG:
+def make(td3: bool, penalty: float, after: int = 0) -> DDPG:
     torch.manual_seed(0)
     actor = BranchedActor(3, [32, 32], n_actions=2)
     critic = BranchedCritic(3, [64, 64], n_actions=2)
@@ -28,6 +28,7 @@ def make(td3: bool, penalty: float) -> DDPG:
         td3=td3,
         actor_delay=1,
         steer_slope_penalty=penalty,
+        steer_slope_penalty_after=after,
     )
 
 
@@ -91,9 +92,23 @@ def test_the_penalty_reaches_every_critic_and_not_the_actor(td3):
     assert all(p.grad is None or p.grad.abs().sum() == 0 for p in ddpg.actor.parameters())
 
 
+def test_a_delayed_penalty_starts_after_that_many_updates_and_resumes_there():
+    batch = one_step_batch(steer_weight=0.0)
+    ddpg = make(True, 1.0, after=3)
+    charged = []
+    for _ in range(5):
+        charged.append("loss_steer_slope" in ddpg.update(batch).keys())
+    assert charged == [False, False, False, True, True]
+    resumed = make(True, 1.0, after=3)
+    resumed.load_state_dict(ddpg.state_dict())
+    assert "loss_steer_slope" in resumed.update(batch).keys()
+
+
 def test_a_negative_penalty_is_refused_naming_the_field():
     with pytest.raises(ValueError, match="scale.critic_steer_penalty must be >= 0"):
         check_scale(dataclasses.replace(TINY, critic_steer_penalty=-0.1))
+    with pytest.raises(ValueError, match="scale.critic_steer_penalty_after must be >= 0"):
+        check_scale(dataclasses.replace(TINY, critic_steer_penalty_after=-1))
     with pytest.raises(ValueError, match="steer_slope_penalty"):
         make(True, -1.0)
 

@@ -173,6 +173,8 @@ class ScaleConfig:
     """td3: the actor maximises min(Q1, Q2) (as SAC) instead of TD3's Q1 (learner.ddpg)."""
     critic_steer_penalty: float = 0.0
     """lambda of lambda E[(dQ/d steering)^2] at the minibatch's actions, added to each critic's loss (learner.ddpg); 0: none, the paper."""
+    critic_steer_penalty_after: int = 0
+    """critic_steer_penalty applies from this many DDPG updates on (0: from the first)."""
 
 
 SQUASHES = ("clip", "tanh")
@@ -244,6 +246,8 @@ def check_scale(scale: ScaleConfig) -> None:
         raise ValueError("scale.td3_target_min_weight needs scale.td3=true (it blends the twin critics)")
     if not scale.critic_steer_penalty >= 0.0:
         raise ValueError(f"scale.critic_steer_penalty must be >= 0, got {scale.critic_steer_penalty}")
+    if scale.critic_steer_penalty_after < 0:
+        raise ValueError(f"scale.critic_steer_penalty_after must be >= 0, got {scale.critic_steer_penalty_after}")
     if scale.td3_actor_delay < 1:
         raise ValueError(f"scale.td3_actor_delay must be >= 1, got {scale.td3_actor_delay}")
 
