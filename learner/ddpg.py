@@ -149,10 +149,7 @@ class DDPG:
     def steer_slope_sq(self, batch: TensorDictBase) -> Tensor:
         """sum over the critics of mean (dQ/d steering)^2 at the minibatch's own actions, differentiable
         in the critics' parameters (double backward); the actor takes no part."""
-        if self.td3:
-            qnet, stacked = self.loss_module.qvalue_network, self.loss_module.qvalue_network_params.unbind(0)
-        else:
-            qnet, stacked = self.loss_module.value_network, [self.loss_module.value_network_params]
+        qnet, stacked = self.critics()
         td = batch.select(*qnet.in_keys).clone(False)
         action = td["action"].detach().requires_grad_(True)
         terms = []
@@ -162,6 +159,12 @@ class DDPG:
             (grad,) = torch.autograd.grad(q.sum(), action, create_graph=True)
             terms.append(grad[:, 0].pow(2).mean())  # action 0 is the steering
         return torch.stack(terms).sum()
+
+    def critics(self) -> tuple[nn.Module, list[TensorDictBase]]:
+        """The critic network and the parameters of each critic (the twins' two with td3, else one)."""
+        if self.td3:
+            return self.loss_module.qvalue_network, list(self.loss_module.qvalue_network_params.unbind(0))
+        return self.loss_module.value_network, [self.loss_module.value_network_params]
 
     def actor_batch(self, batch: TensorDictBase) -> TensorDictBase:
         """The items the actor's loss averages over: all, or those not from the crash memory."""
@@ -174,9 +177,9 @@ class DDPG:
 
         Written here because torchrl's TD3Loss takes the first critic only (its actor_loss)."""
         acted = self.actor_module(batch.select(*self.actor_module.in_keys).clone(False))
-        qnet = self.loss_module.qvalue_network
+        qnet, stacked = self.critics()
         values = []
-        for params in self.loss_module.qvalue_network_params.unbind(0):
+        for params in stacked:
             with params.detach().to_module(qnet):
                 values.append(qnet(acted.select(*qnet.in_keys).clone(False))["state_action_value"])
         return -torch.minimum(*values).mean()
@@ -187,10 +190,8 @@ class DDPG:
         (with td3 the first twin's, the one TD3's actor climbs). Nothing is stepped or accumulated."""
         with torch.no_grad():
             action = self.actor_module(batch.select(*self.actor_module.in_keys).clone(False))["action"]
-        if self.td3:
-            qnet, params = self.loss_module.qvalue_network, self.loss_module.qvalue_network_params.unbind(0)[0]
-        else:
-            qnet, params = self.loss_module.value_network, self.loss_module.value_network_params
+        qnet, stacked = self.critics()
+        params = stacked[0]
         td = batch.select(*(k for k in qnet.in_keys if k != "action")).clone(False)
         td["action"] = action.detach().requires_grad_(True)
         with params.detach().to_module(qnet):

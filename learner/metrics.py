@@ -88,7 +88,8 @@ def prediction_error(
 
 
 def ddpg_metrics(out: TensorDictBase) -> dict[str, float]:
-    """DDPG's losses and Q statistics from its loss output (`learner.ddpg.DDPG.loss`)."""
+    """DDPG's losses and Q statistics from its loss output (`learner.ddpg.DDPG.loss`); the critic's
+    loss includes the steering-slope penalty where one is set, also reported alone."""
     q = out["pred_value"].detach()
     penalty = {"losses/steer_slope": float(out["loss_steer_slope"])} if "loss_steer_slope" in out.keys() else {}
     return penalty | {
