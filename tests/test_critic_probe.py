@@ -90,3 +90,22 @@ def test_the_recorded_phi_and_actions_are_the_drives_own():
         assert np.array_equal(recorded, drive["trace"]["action"])
         assert record[0][0].shape == (2, policy.gvf.n_predictions + 3)  # phi: predictions, speed, last action
         assert record[0][2].shape == record[0][0].shape and not torch.equal(record[0][2], record[0][0])
+
+
+def test_every_twin_critic_is_read_from_a_checkpoint_in_its_stacked_order():
+    from actors.evaluation.critic_probe import twin_critics
+    from learner.core import LearningCore
+
+    torch.manual_seed(0)
+    agent, scale = AgentConfig(name="gvf_ddpg", **VARIANTS["gvf_ddpg"]), dataclasses.replace(TINY, td3=True)
+    core = LearningCore(agent, scale, seed=0)
+    critics = twin_critics({"core": core.state_dict()}, agent, scale)
+    qnet, stacked = core.ddpg.critics()
+    assert len(critics) == 2
+    x, a = torch.randn(5, critics[0].reads), torch.rand(5, 2) * 2 - 1
+    with torch.no_grad():
+        for critic, params in zip(critics, stacked, strict=True):
+            with params.to_module(qnet):
+                expected = qnet.module(x, a)
+            assert torch.allclose(critic(x, a), expected)
+        assert not torch.allclose(critics[0](x, a), critics[1](x, a))  # two critics, not one read twice

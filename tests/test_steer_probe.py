@@ -91,3 +91,16 @@ def test_a_branch_shares_only_what_never_changes():
     b = sim.branch()
     shared = {name for name, value in vars(sim).items() if getattr(b, name) is value}
     assert shared <= {"cfg", "n", "camera", "half"}  # every mutable piece of state is the branch's own
+
+
+def test_twin_slopes_are_read_each_and_their_mean_where_they_disagree():
+    # twin 1 wants more left steering, twin 2 twice as much right: the car pushed left of the centre
+    twins = lambda features, actions: np.tile([1.0, -2.0], (len(actions), 1))  # noqa: E731
+    reward = lambda sim, terminated: sim.reward - 10.0 * terminated  # noqa: E731
+    rows = probe_drives(
+        sim_on("dune"), biased_controller(0.08), twins, reward, 0.99, every=60, horizon=150, min_offset=0.1
+    )
+    m = summarise(rows)
+    assert rows.shape[1] == 4 and m["states"] >= 10
+    assert m["critic_to_centre"] == 0.0 and m["twin2_to_centre"] == 1.0 and m["twins_agree"] == 0.0
+    assert m["mean_to_centre"] == 1.0 and m["mean_where_it_pays"] == 1.0  # the mean (+0.5 to the centre) follows twin 2

@@ -70,6 +70,20 @@ def load_critic(state: dict, agent: AgentConfig, scale: ScaleConfig):
     return nets.policy.eval(), nets.critic.eval()
 
 
+def twin_critics(state: dict, agent: AgentConfig, scale: ScaleConfig) -> list[torch.nn.Module]:
+    """Every critic of a learner checkpoint: TD3's twins in their stacked order, else the one."""
+    loss = state["core"]["ddpg"]["loss"]
+    if not scale.td3:
+        return [load_critic(state, agent, scale)[1]]
+    stacked = {k[len(Q_PREFIX) :]: v for k, v in loss.items() if k.startswith(Q_PREFIX)}
+    critics = []
+    for i in range(next(iter(stacked.values())).shape[0]):
+        critic = make_networks(agent, scale).critic
+        critic.load_state_dict({k: v[i] for k, v in stacked.items()})
+        critics.append(critic.eval())
+    return critics
+
+
 def load_probed(path: Path):
     """A predictive checkpoint's (state, agent, scale, acting policy, critic); others are refused."""
     state = checkpoint.load(checkpoint.find(path))

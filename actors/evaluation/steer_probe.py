@@ -9,7 +9,8 @@ penalty, offset weight) is the true slope of Q^pi along the steering, by central
 a deterministic simulator (the nudge clipped at the steering's bounds, the difference is over the
 steering actually moved); the critic's dQ/d(steering) at the same state and action is the slope
 the actor climbs (where its output is not held at a bound by the clip). Both are signed so that
-positive is "towards the centre".
+positive is "towards the centre". With TD3's twin critics each twin's slope is read, and their mean:
+the slope an actor that climbed the twins' mean would follow (do the twins' errors cancel?).
 
 If the true slope points to the centre where the critic's does not, the critic keeps the offset;
 if the true slope itself does not, one step towards the centre does not pay under this policy (it
@@ -28,7 +29,7 @@ import numpy as np
 import torch
 
 from actors.envs.sim import LaneDriveSim
-from actors.evaluation.critic_probe import load_probed
+from actors.evaluation.critic_probe import load_probed, twin_critics
 from actors.evaluation.main import eval_env_kwargs
 from actors.evaluation.road_gap import cell, checkpoint_tool, roads
 from common.config.agent import ScaleConfig, shaped_reward, step_sizes
@@ -36,7 +37,8 @@ from common.config.env import NOISE_FREE, OFF_CENTRE, EnvConfig
 from common.config.run import RunConfig
 from common.networks import phi
 
-# act(sim) -> (features for the critic, actions (n, 2) in [-1, 1]); slope(features, actions) -> (n,) dQ/dsteer
+# act(sim) -> (features for the critic, actions (n, 2) in [-1, 1]);
+# slope(features, actions) -> dQ/dsteer, (n,) or (n, k) for k critics
 ActFn = Callable[[LaneDriveSim], tuple[object, np.ndarray]]
 SlopeFn = Callable[[object, np.ndarray], np.ndarray]
 
@@ -77,7 +79,7 @@ def probe_drives(
     min_offset: float = OFF_CENTRE,
 ) -> np.ndarray:
     """Drive every car of `sim` (already reset) to its lap's or episode's end; rows (alpha, true
-    slope, critic's slope) at the probed off-centre states, slopes signed towards the centre."""
+    slope, each critic's slope) at the probed off-centre states, slopes signed towards the centre."""
     running, rows, step = np.ones(sim.n, bool), [], 0
     while running.any():
         features, actions = act(sim)
@@ -88,21 +90,32 @@ def probe_drives(
             for sign, a in zip((1.0, -1.0), shifted):
                 a[:, 0] = np.clip(a[:, 0] + sign * eps * towards * off, -1.0, 1.0)
             g_to, g_away = (branch_returns(sim, act, a, reward, horizon, discount) for a in shifted)
-            critic = towards * slope(features, actions)
+            critic = towards[:, None] * np.asarray(slope(features, actions)).reshape(sim.n, -1)
             moved = towards * (shifted[0][:, 0] - shifted[1][:, 0])  # less than 2 eps where clipped at a bound
             for i in np.flatnonzero(off & (moved > 0)):
-                rows.append((sim.alpha[i], (g_to[i] - g_away[i]) / moved[i], critic[i]))
+                rows.append((sim.alpha[i], (g_to[i] - g_away[i]) / moved[i], *critic[i]))
         running &= ~step_laps(sim, actions)
         step += 1
-    return np.asarray(rows, np.float64).reshape(-1, 3)
+    return np.asarray(rows, np.float64).reshape(-1, len(rows[0]) if rows else 3)
 
 
 def summarise(rows: np.ndarray) -> dict:
-    """Shares of the probed states where each slope points to the centre, and where they agree."""
+    """Shares of the probed states where each slope points to the centre, and where they agree;
+    with twin critics (a fourth column) also the second twin's and the twins' mean slope."""
     if not len(rows):
         return {"states": 0}
     true, critic = rows[:, 1], rows[:, 2]
     pays = true > 0
+    twins = {}
+    if rows.shape[1] > 3:
+        mean = rows[:, 2:].mean(1)
+        twins = {
+            "twin2_to_centre": float((rows[:, 3] > 0).mean()),
+            "twin2_where_it_pays": float((rows[pays, 3] > 0).mean()) if pays.any() else None,
+            "twins_agree": float(((rows[:, 2] > 0) == (rows[:, 3] > 0)).mean()),
+            "mean_to_centre": float((mean > 0).mean()),
+            "mean_where_it_pays": float((mean[pays] > 0).mean()) if pays.any() else None,
+        }
     return {
         "states": len(rows),
         "mean_abs_alpha": float(np.abs(rows[:, 0]).mean()),
@@ -112,6 +125,7 @@ def summarise(rows: np.ndarray) -> dict:
         "critic_where_it_pays": float((critic[pays] > 0).mean()) if pays.any() else None,
         "true_slope_median": float(np.median(true)),
         "critic_slope_median": float(np.median(critic)),
+        **twins,
     }
 
 
@@ -128,13 +142,16 @@ def network_act(policy: torch.nn.Module) -> ActFn:
     return act
 
 
-def critic_slope(critic: torch.nn.Module) -> SlopeFn:
-    """dQ/d(steering) of `critic` at (phi, action)."""
+def critic_slope(*critics: torch.nn.Module) -> SlopeFn:
+    """dQ/d(steering) of each critic at (phi, action), (n, k)."""
 
     def slope(x: torch.Tensor, actions: np.ndarray) -> np.ndarray:
-        a = torch.from_numpy(actions).requires_grad_(True)
-        (grad,) = torch.autograd.grad(critic(x, a).sum(), a)
-        return grad[:, 0].numpy()
+        columns = []
+        for critic in critics:
+            a = torch.from_numpy(actions).requires_grad_(True)
+            (grad,) = torch.autograd.grad(critic(x, a).sum(), a)
+            columns.append(grad[:, 0].numpy())
+        return np.stack(columns, 1)
 
     return slope
 
@@ -158,12 +175,13 @@ def sim_on_test_laps(cfg: RunConfig) -> LaneDriveSim:
 
 
 def measure_checkpoint(path: Path, cfg: RunConfig | None = None, **probe_kwargs) -> dict:
-    state, agent, scale, policy, critic = load_probed(path)
+    state, agent, scale, policy, _ = load_probed(path)
+    critics = twin_critics(state, agent, scale)  # the first is the one TD3's actor climbs
     cfg = cfg or RunConfig()
     sim = sim_on_test_laps(cfg)
     discount = step_sizes(agent, scale)["discount"]
     reward = ddpg_reward(scale, sim.cfg.vehicle.v_max)
-    rows = probe_drives(sim, network_act(policy), critic_slope(critic), reward, discount, **probe_kwargs)
+    rows = probe_drives(sim, network_act(policy), critic_slope(*critics), reward, discount, **probe_kwargs)
     settings = {"every": 40, "horizon": 300, "eps": 0.1, **probe_kwargs}
     return {"agent": agent.name, "updates": state["core"]["updates"], "probe": settings, **summarise(rows)}
 
@@ -176,15 +194,18 @@ def report(measured: dict[str, dict]) -> list[str]:
         f"policy driving `horizon` steps on) and the critic's. Probe settings: {', '.join(settings)}.",
         "",
         "| checkpoint | updates | states | mean abs(alpha) | true slope to the centre | critic's to the centre "
-        "| agree | critic's where it pays | median true slope | median critic's |",
-        "|" + " --- |" * 10,
+        "| agree | critic's where it pays | median true slope | median critic's | second twin's to the centre "
+        "| second twin's where it pays | twins agree | twins' mean to the centre | twins' mean where it pays |",
+        "|" + " --- |" * 15,
     ]
     for path, m in measured.items():
         lines.append(
             f"| {path} | {m['updates']} | {m['states']} | {cell(m, 'mean_abs_alpha', '.2f')} "
             f"| {cell(m, 'true_to_centre', '.2f')} | {cell(m, 'critic_to_centre', '.2f')} | {cell(m, 'agree', '.2f')} "
             f"| {cell(m, 'critic_where_it_pays', '.2f')} | {cell(m, 'true_slope_median', '+.2f')} "
-            f"| {cell(m, 'critic_slope_median', '+.2f')} |"
+            f"| {cell(m, 'critic_slope_median', '+.2f')} | {cell(m, 'twin2_to_centre', '.2f')} "
+            f"| {cell(m, 'twin2_where_it_pays', '.2f')} | {cell(m, 'twins_agree', '.2f')} "
+            f"| {cell(m, 'mean_to_centre', '.2f')} | {cell(m, 'mean_where_it_pays', '.2f')} |"
         )
     return lines
 
