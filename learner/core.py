@@ -109,6 +109,7 @@ class LearningCore:
             actor_delay=scale.td3_actor_delay,
             lr_actor_decay_updates=scale.lr_actor_decay_updates,
             lr_actor_final=scale.lr_actor_final,
+            lr_actor_decay_after=scale.lr_actor_decay_after,
             steer_slope_penalty=scale.critic_steer_penalty,
             steer_slope_penalty_after=scale.critic_steer_penalty_after,
             actor_min_q=scale.actor_min_q,

@@ -36,7 +36,9 @@ data do not support then costs. `steer_slope_penalty_after` starts it after that
 Written here: torchrl's losses have no action-gradient penalty.
 
 `lr_actor_decay_updates` (an option, 0 by default) lowers the actor's step size linearly to
-`lr_actor_final` of it over that many updates, so that a policy found early moves less later.
+`lr_actor_final` of it over that many updates, so that a policy found early moves less later;
+`lr_actor_decay_after` holds it for that many updates first (torch's `SequentialLR`), so that the
+first laps are learned at the full step size.
 """
 
 from __future__ import annotations
@@ -52,6 +54,18 @@ from torchrl.objectives import DDPGLoss, SoftUpdate, ValueEstimators
 
 from learner.replay import FROM_CRASHES
 from learner.td3_target import BlendedTD3Loss
+
+
+def actor_schedule(optimizer: torch.optim.Optimizer, decay_updates: int, final: float, after: int):
+    """Stepped once per update: the step size holds for `after` updates, falls linearly to `final`
+    of it over `decay_updates`, then holds there; None where `decay_updates` is 0 (constant)."""
+    if not decay_updates:
+        return None
+    decay = torch.optim.lr_scheduler.LinearLR(optimizer, 1.0, final, total_iters=decay_updates)
+    if not after:
+        return decay
+    hold = torch.optim.lr_scheduler.ConstantLR(optimizer, factor=1.0, total_iters=after)
+    return torch.optim.lr_scheduler.SequentialLR(optimizer, [hold, decay], milestones=[after])
 
 
 class DDPG:
@@ -74,6 +88,7 @@ class DDPG:
         actor_delay: int = 2,
         lr_actor_decay_updates: int = 0,
         lr_actor_final: float = 0.1,
+        lr_actor_decay_after: int = 0,
         actor_min_q: bool = False,
         actor_on_crash_memory: bool = True,
         target_min_weight: float = 1.0,
@@ -120,13 +135,8 @@ class DDPG:
         # fused: one kernel per step instead of one per tensor
         self.actor_optimizer = torch.optim.Adam(actor.parameters(), lr=lr_actor, fused=True)
         self.critic_optimizer = torch.optim.Adam(critic_params, lr=lr_critic, fused=True)
-        # stepped once per update: the step size falls linearly, then holds at lr_actor_final
-        self.actor_schedule = (
-            torch.optim.lr_scheduler.LinearLR(
-                self.actor_optimizer, 1.0, lr_actor_final, total_iters=lr_actor_decay_updates
-            )
-            if lr_actor_decay_updates
-            else None
+        self.actor_schedule = actor_schedule(
+            self.actor_optimizer, lr_actor_decay_updates, lr_actor_final, lr_actor_decay_after
         )
 
     def loss(self, batch: TensorDictBase) -> tuple[Tensor, TensorDictBase]:

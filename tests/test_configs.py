@@ -60,6 +60,8 @@ def test_bad_values_are_refused_naming_the_field(override, field):
         ("agent.rho_refresh_every=-1", "rho_refresh_every"),
         ("scale.crash_memory=-5", "crash_memory"),
         ("scale.lr_actor_decay_updates=-1", "lr_actor_decay_updates"),
+        ("scale.lr_actor_decay_after=-1 scale.lr_actor_decay_updates=5", "lr_actor_decay_after"),
+        ("scale.lr_actor_decay_after=100", "lr_actor_decay_after"),
         ("scale.lr_actor_final=0", "lr_actor_final"),
         ("scale.crash_steps=0", "crash_steps"),
         ("scale.crash_memory=0 scale.crash_memory_actor=false", "crash_memory_actor"),

@@ -70,6 +70,24 @@ def test_actor_step_size_decays_linearly_then_holds_and_resumes_where_it_was():
     assert fresh.actor_optimizer.param_groups[0]["lr"] == pytest.approx(0.25e-3)
 
 
+def test_actor_step_size_holds_then_decays_and_resumes_where_it_was():
+    torch.manual_seed(0)
+    kwargs = dict(lr_actor=1e-3, lr_critic=1e-2, lr_actor_decay_updates=2, lr_actor_final=0.5, lr_actor_decay_after=3)
+    ddpg = make(3, 2, **kwargs)
+    batch = random_batch(8)
+    seen = []
+    for _ in range(5):
+        seen.append(ddpg.actor_optimizer.param_groups[0]["lr"])
+        ddpg.update(batch)
+    # held for 3 updates, then 2 to fall to half
+    assert seen == pytest.approx([1e-3, 1e-3, 1e-3, 1e-3, 0.75e-3])
+    fresh = make(3, 2, **kwargs)
+    fresh.load_state_dict(ddpg.state_dict())
+    for _ in range(3):
+        fresh.update(batch)
+        assert fresh.actor_optimizer.param_groups[0]["lr"] == pytest.approx(0.5e-3)
+
+
 def test_ddpg_solves_a_contextual_bandit():
     """One-step episodes, r = -(a0 - 0.5 s0)^2 - (a1 + 0.3 s1)^2: pi*(s) = (0.5 s0, -0.3 s1).
 

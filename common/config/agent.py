@@ -159,6 +159,8 @@ class ScaleConfig:
     lr_actor_final, then stays there; 0: constant, as the paper."""
     lr_actor_final: float = 0.1
     """lr_actor_decay_updates: the final step size as a fraction of lr_actor."""
+    lr_actor_decay_after: int = 0
+    """lr_actor_decay_updates: the step size holds at lr_actor for this many updates before it falls."""
     td3: bool = False
     """TD3-style critic (twin critics, target-policy smoothing, delayed actor steps) instead of the paper's DDPG (learner.ddpg)."""
     td3_policy_noise: float = 0.2
@@ -234,6 +236,11 @@ def check_scale(scale: ScaleConfig) -> None:
         raise ValueError(f"scale.crash_steps must be >= 1, got {scale.crash_steps}")
     if scale.lr_actor_decay_updates < 0:
         raise ValueError(f"scale.lr_actor_decay_updates must be >= 0, got {scale.lr_actor_decay_updates}")
+    if scale.lr_actor_decay_after < 0 or (scale.lr_actor_decay_after and not scale.lr_actor_decay_updates):
+        raise ValueError(
+            f"scale.lr_actor_decay_after must be >= 0 and needs scale.lr_actor_decay_updates > 0, "
+            f"got {scale.lr_actor_decay_after}"
+        )
     if not 0.0 < scale.lr_actor_final <= 1.0:
         raise ValueError(f"scale.lr_actor_final must be in (0, 1], got {scale.lr_actor_final}")
     if scale.actor_min_q and not scale.td3:
