@@ -7,10 +7,18 @@ import numpy as np
 import pytest
 import torch
 
-from actors.evaluation.critic_probe import discounted_returns, mirrored_probe, probe_steps, recording_policy, summarise
+from actors.evaluation.critic_probe import (
+    discounted_returns,
+    mirrored_probe,
+    probe_steps,
+    recording_policy,
+    summarise,
+    twin_critics,
+)
 from actors.evaluation.evaluate import evaluate
 from common.config.agent import AgentConfig
 from common.networks import make_policy
+from learner.core import LearningCore
 from tests.core_fixtures import TINY, VARIANTS
 
 
@@ -93,9 +101,6 @@ def test_the_recorded_phi_and_actions_are_the_drives_own():
 
 
 def test_every_twin_critic_is_read_from_a_checkpoint_in_its_stacked_order():
-    from actors.evaluation.critic_probe import twin_critics
-    from learner.core import LearningCore
-
     torch.manual_seed(0)
     agent, scale = AgentConfig(name="gvf_ddpg", **VARIANTS["gvf_ddpg"]), dataclasses.replace(TINY, td3=True)
     core = LearningCore(agent, scale, seed=0)

@@ -59,22 +59,20 @@ def discounted_returns(rewards: np.ndarray, discount: float) -> np.ndarray:
 
 
 def load_critic(state: dict, agent: AgentConfig, scale: ScaleConfig):
-    """The acting policy and the critic the actor maximises, from a learner checkpoint."""
+    """The acting policy and the critic the actor maximises (TD3's first twin), from a learner checkpoint."""
     nets = make_networks(agent, scale)
     nets.policy.load_state_dict(state["policy"])
-    loss = state["core"]["ddpg"]["loss"]
-    if scale.td3:  # the twins are stacked (2, ...) in the loss module; TD3's actor climbs the first
-        nets.critic.load_state_dict({k[len(Q_PREFIX) :]: v[0] for k, v in loss.items() if k.startswith(Q_PREFIX)})
-    else:
-        nets.critic.load_state_dict(state["core"]["critic"])
-    return nets.policy.eval(), nets.critic.eval()
+    return nets.policy.eval(), twin_critics(state, agent, scale)[0]
 
 
 def twin_critics(state: dict, agent: AgentConfig, scale: ScaleConfig) -> list[torch.nn.Module]:
-    """Every critic of a learner checkpoint: TD3's twins in their stacked order, else the one."""
-    loss = state["core"]["ddpg"]["loss"]
+    """Every critic of a learner checkpoint: TD3's twins in their stacked order (the loss module
+    keeps them stacked (2, ...)), else the one."""
     if not scale.td3:
-        return [load_critic(state, agent, scale)[1]]
+        critic = make_networks(agent, scale).critic
+        critic.load_state_dict(state["core"]["critic"])
+        return [critic.eval()]
+    loss = state["core"]["ddpg"]["loss"]
     stacked = {k[len(Q_PREFIX) :]: v for k, v in loss.items() if k.startswith(Q_PREFIX)}
     critics = []
     for i in range(next(iter(stacked.values())).shape[0]):
