@@ -46,8 +46,17 @@ class GVFNetwork(nn.Module):
         self.n_predictions = n_predictions
         self.register_buffer("mirror_last", torch.tensor([-1.0, 1.0]) if odd else None)
 
+    @staticmethod
+    def head_input(features: Tensor, speed: Tensor, last_action: Tensor) -> Tensor:
+        return torch.cat([features, speed, last_action], -1)
+
+    def features_and_values(self, image: Tensor, speed: Tensor, last_action: Tensor) -> tuple[Tensor, Tensor]:
+        """The trunk's features and the predictions of one pass without the mirror (learner.offset_steer)."""
+        features = self.trunk(image)
+        return features, self.head(self.head_input(features, speed, last_action))
+
     def _raw(self, image: Tensor, speed: Tensor, last_action: Tensor) -> Tensor:
-        return self.head(torch.cat([self.trunk(image), speed, last_action], -1))
+        return self.features_and_values(image, speed, last_action)[1]
 
     def forward(self, image: Tensor, speed: Tensor, last_action: Tensor) -> Tensor:
         if self.mirror_last is None:

@@ -1,8 +1,7 @@
 """One combined learner update of GVF-DDPG and its baselines (Algorithm 1, lines 8-17, then
 DDPG on phi), free of any transport or process code.
 
-`LearningCore.add` is lines 8-10: it computes rho = tau / mu_hat (learner.insert_rho) with the current
-discriminator for the incoming transitions and stores them in the shared replay.
+`LearningCore.add` is lines 8-10: rho = tau / mu_hat (learner.insert_rho) with the current g, stored.
 `LearningCore.update` is lines 11-17 plus DDPG:
 
   rho_bar <- mean rho in D                                          (line 11)
@@ -48,6 +47,7 @@ from learner.insert_rho import RHO_SLICE, InsertRho
 from learner.metrics import actor_diagnostics, ddpg_metrics, prediction_error, steering_diagnostics
 from learner.mirror import mirror
 from learner.nstep import nstep_columns
+from learner.offset_steer import OffsetSteer
 from learner.policy_average import PolicyAverage
 from learner.replay import CrashMemory, ImportanceResamplingReplay, compact, expand, sample_uniform_with
 
@@ -124,6 +124,7 @@ class LearningCore:
         self.average = PolicyAverage(self.nets.policy, scale.policy_average) if scale.policy_average else None
         bounded = self.predictive and agent.gvf_bootstrap_bound  # learner.gvf.ReturnBound
         self.bound = ReturnBound(len(agent.cumulants), self.device) if bounded else None
+        self.offset_steer = OffsetSteer.build(self.nets, agent, scale)  # an option, off as in the paper
 
     # --- Algorithm 1, lines 8-10 -------------------------------------------------------
     def rho(self, td: TensorDictBase) -> tuple[Tensor, Tensor]:
@@ -207,7 +208,9 @@ class LearningCore:
         reward = ddpg_reward(uniform["next"], self.scale, self.discount, uniform.get(STEPS, None))
         if self.predictive:
             losses.update(self._representation_losses(uniform))
-            ddpg_batch = phi_batch(self.nets.gvf, uniform, reward)
+            ddpg_batch = phi_batch(self.nets.gvf, uniform, reward, keep_features=bool(self.offset_steer))
+            if self.offset_steer:
+                losses["actor_offset"] = self.offset_steer(ddpg_batch, uniform["speed"], uniform["last_action"])
         else:
             ddpg_batch = observation_batch(uniform, reward, lowdim=self.nets.representation == "lowdim")
         loss_ddpg, out = self.ddpg.loss(ddpg_batch)

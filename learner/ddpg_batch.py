@@ -11,6 +11,7 @@ from torch import Tensor, nn
 
 from common.config.agent import ScaleConfig, shaped_reward
 from common.networks import phi
+from learner.offset_steer import FEATURES
 from learner.replay import FROM_CRASHES, ImportanceResamplingReplay, expand
 
 STEPS = "steps_to_next_obs"  # torchrl's TD(0) estimator raises its gamma to this (learner.nstep)
@@ -37,11 +38,13 @@ def with_nstep_next(batch: TensorDictBase, stored: TensorDictBase, replay: Impor
 
 
 @torch.no_grad()
-def phi_batch(gvf: nn.Module, uniform: TensorDictBase, reward: Tensor) -> TensorDict:
-    """GVF-DDPG's batch on U with phi(s) and phi(s') of the current GVFs, detached (section 3)."""
+def phi_batch(gvf: nn.Module, uniform: TensorDictBase, reward: Tensor, keep_features: bool = False) -> TensorDict:
+    """GVF-DDPG's batch on U with phi(s) and phi(s') of the current GVFs, detached (section 3);
+    `keep_features` also keeps the trunk's features of s (learner.offset_steer)."""
     nxt = uniform["next"]
     # separate calls for s and s': one 2n batch is slower on CPU
-    v = gvf(uniform["image"], uniform["speed"], uniform["last_action"])
+    obs = (uniform["image"], uniform["speed"], uniform["last_action"])
+    features, v = gvf.features_and_values(*obs) if keep_features else (None, gvf(*obs))
     v_next = gvf(nxt["image"], nxt["speed"], nxt["last_action"])
     batch = TensorDict(
         {
@@ -56,6 +59,8 @@ def phi_batch(gvf: nn.Module, uniform: TensorDictBase, reward: Tensor) -> Tensor
         },
         batch_size=[uniform.shape[0]],
     )
+    if features is not None:
+        batch[FEATURES] = features
     for key in (STEPS, FROM_CRASHES):
         if key in uniform.keys():
             batch[key] = uniform[key]

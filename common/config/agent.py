@@ -177,6 +177,10 @@ class ScaleConfig:
     """lambda of lambda E[(dQ/d steering)^2] at the minibatch's actions, added to each critic's loss (learner.ddpg); 0: none, the paper."""
     critic_steer_penalty_after: int = 0
     """critic_steer_penalty applies from this many DDPG updates on (0: from the first)."""
+    actor_offset_weight: float = 0.0
+    """w of w * mean v_alpha(s, last steering := the actor's)^2 added to GVF-DDPG's actor loss: the steering the predictions say centres the car (learner.offset_steer); 0: none, the paper."""
+    actor_offset_gammas: list[float] = field(default_factory=lambda: [0.9, 0.95, 0.97])
+    """actor_offset_weight: the alpha predictions (by their agent.gammas) the term reads."""
 
 
 SQUASHES = ("clip", "tanh")
@@ -255,6 +259,10 @@ def check_scale(scale: ScaleConfig) -> None:
         raise ValueError(f"scale.critic_steer_penalty must be >= 0, got {scale.critic_steer_penalty}")
     if scale.critic_steer_penalty_after < 0:
         raise ValueError(f"scale.critic_steer_penalty_after must be >= 0, got {scale.critic_steer_penalty_after}")
+    if not scale.actor_offset_weight >= 0.0:
+        raise ValueError(f"scale.actor_offset_weight must be >= 0, got {scale.actor_offset_weight}")
+    if scale.actor_offset_weight and not scale.actor_offset_gammas:
+        raise ValueError("scale.actor_offset_gammas must name at least one of agent.gammas")
     if scale.td3_actor_delay < 1:
         raise ValueError(f"scale.td3_actor_delay must be >= 1, got {scale.td3_actor_delay}")
 
