@@ -7,9 +7,9 @@ along the steering pointed to the centre at chance (`steer_probe`); this probe a
 predictions' slope has the sign the simulator gives.
 
 A checkpoint's policy drives the test laps without noise. Every `every` steps, at each car still on
-its lap (the term learner.offset_steer acts at every state, centred or not), the simulator is branched twice (`LaneDriveSim.branch`) with the
-last action's steering nudged `eps` each way; each branch then repeats that action (tau's mean)
-for `horizon` steps. Per gamma, the (1 - gamma)-scaled discounted sum of alpha (0 after the car
+its lap (learner.offset_steer acts at every state, centred or not), the simulator is branched twice
+(`LaneDriveSim.branch`) with the last action's steering nudged `eps` each way; each branch then
+repeats that action (tau's mean) for `horizon` steps. Per gamma, the (1 - gamma)-scaled discounted sum of alpha (0 after the car
 leaves the lane, the `zero` terminal convention) differenced over the steering moved is the true
 slope; the GVF's is d v_alpha / d(last steering) by autograd at the unnudged input.
 
@@ -65,8 +65,8 @@ def probe_drives(
     eps: float = 0.05,
     min_offset: float = 0.0,
 ) -> np.ndarray:
-    """Rows (alpha, true slopes (G), GVF slopes (G)) at the probed off-centre states of the drives
-    of `act` (the checkpoint's policy: `steer_probe.network_act`)."""
+    """Rows (alpha, true slopes (G), GVF slopes (G)) at the probed states (|alpha| >= `min_offset`)
+    of the drives of `act` (the checkpoint's policy: `steer_probe.network_act`)."""
     running, rows, step = np.ones(sim.n, bool), [], 0
     while running.any():
         actions = act(sim)[1]
@@ -89,14 +89,17 @@ def probe_drives(
 def summarise(rows: np.ndarray, gammas: np.ndarray) -> dict:
     """Per gamma: the share of states where the GVF's slope has the true one's sign, and both medians."""
     k = len(gammas)
-    out = {"states": len(rows), "mean_abs_alpha": float(np.abs(rows[:, 0]).mean()) if len(rows) else None}
+    out = {"states": len(rows)}
+    if not len(rows):
+        return out
+    out["mean_abs_alpha"] = float(np.abs(rows[:, 0]).mean())
     for j, gamma in enumerate(gammas):
         true, learned = rows[:, 1 + j], rows[:, 1 + k + j]
         out[f"{gamma:g}"] = {
-            "sign_agrees": float((np.sign(true) == np.sign(learned)).mean()) if len(rows) else None,
-            "true_positive": float((true > 0).mean()) if len(rows) else None,
-            "true_median": float(np.median(true)) if len(rows) else None,
-            "gvf_median": float(np.median(learned)) if len(rows) else None,
+            "sign_agrees": float((np.sign(true) == np.sign(learned)).mean()),
+            "true_positive": float((true > 0).mean()),
+            "true_median": float(np.median(true)),
+            "gvf_median": float(np.median(learned)),
         }
     return out
 
@@ -127,8 +130,6 @@ def report(measured: dict[str, dict]) -> list[str]:
         for gamma, g in (
             (key, value) for key, value in m.items() if isinstance(value, dict) and "sign_agrees" in value
         ):
-            if g["sign_agrees"] is None:
-                continue
             lines.append(
                 f"| {path} | {m['updates']} | {m['states']} | {gamma} | {g['sign_agrees']:.2f} "
                 f"| {g['true_positive']:.2f} | {g['true_median']:+.3f} | {g['gvf_median']:+.3f} |"

@@ -179,8 +179,8 @@ class ScaleConfig:
     """critic_steer_penalty applies from this many DDPG updates on (0: from the first)."""
     actor_offset_weight: float = 0.0
     """w of w * mean v_alpha(s, last steering := the actor's)^2 added to GVF-DDPG's actor loss: the steering the predictions say centres the car (learner.offset_steer); 0: none, the paper."""
-    actor_offset_gammas: list[float] = field(default_factory=lambda: [0.9, 0.95, 0.97])
-    """actor_offset_weight: the alpha predictions (by their agent.gammas) the term reads."""
+    actor_offset_gammas: list[float] = field(default_factory=lambda: [0.0, 0.5])
+    """actor_offset_weight: the alpha predictions (by their agent.gammas) the term reads; the short ones slope the true way along the steering (actors.evaluation.prediction_probe)."""
 
 
 SQUASHES = ("clip", "tanh")
