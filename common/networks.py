@@ -253,6 +253,12 @@ def n_predictions(agent: AgentConfig) -> int:
     return len(agent.cumulants) * len(agent.gammas)
 
 
+def prediction_columns(agent: AgentConfig, cumulant: str) -> slice:
+    """The columns of `cumulant`'s predictions, one per gamma, in the GVFs' cumulant-major output."""
+    start = list(agent.cumulants).index(cumulant) * len(agent.gammas)
+    return slice(start, start + len(agent.gammas))
+
+
 def _check(agent: AgentConfig) -> None:
     if agent.representation not in REPRESENTATIONS:
         raise ValueError(f"representation must be one of {REPRESENTATIONS}, got {agent.representation!r}")

@@ -19,6 +19,8 @@ from tensordict import TensorDictBase
 from torch import Tensor, nn
 from torch.func import functional_call
 
+from common.networks import prediction_columns
+
 FEATURES = "gvf_features"  # the GVF trunk's features of s, kept by phi_batch for this term
 
 
@@ -43,8 +45,8 @@ class OffsetSteer:
         missing = [g for g in scale.actor_offset_gammas if g not in gammas]
         if missing:
             raise ValueError(f"scale.actor_offset_gammas {missing} are not in agent.gammas {gammas}")
-        start = cumulants.index("alpha") * len(gammas)  # cumulant-major (learner.gvf)
-        columns = [start + gammas.index(g) for g in scale.actor_offset_gammas]
+        alpha = prediction_columns(agent, "alpha")
+        columns = [alpha.start + gammas.index(g) for g in scale.actor_offset_gammas]
         return cls(nets.gvf, nets.actor, columns, scale.actor_offset_weight)
 
     def __call__(self, batch: TensorDictBase, speed: Tensor, last_action: Tensor) -> Tensor:

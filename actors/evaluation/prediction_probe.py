@@ -28,6 +28,7 @@ from actors.evaluation.critic_probe import load_probed
 from actors.evaluation.road_gap import checkpoint_tool
 from actors.evaluation.steer_probe import ActFn, network_act, sim_on_test_laps, step_laps
 from common.config.run import RunConfig
+from common.networks import prediction_columns
 
 
 def held_returns(sim: LaneDriveSim, actions: np.ndarray, gammas: np.ndarray, horizon: int) -> np.ndarray:
@@ -108,10 +109,11 @@ def measure_checkpoint(path: Path, cfg: RunConfig | None = None, **probe_kwargs)
     state, agent, _, policy, _ = load_probed(path)
     if "alpha" not in agent.cumulants:
         raise SystemExit(f"{path}: the probe reads the alpha predictions; cumulants are {agent.cumulants}")
-    start = agent.cumulants.index("alpha") * len(agent.gammas)  # cumulant-major (learner.gvf)
     gammas = np.asarray(agent.gammas, np.float64)
     sim = sim_on_test_laps(cfg or RunConfig())
-    rows = probe_drives(sim, network_act(policy), policy.gvf, gammas, slice(start, start + len(gammas)), **probe_kwargs)
+    rows = probe_drives(
+        sim, network_act(policy), policy.gvf, gammas, prediction_columns(agent, "alpha"), **probe_kwargs
+    )
     settings = {"every": 40, "horizon": 300, "eps": 0.05, **probe_kwargs}
     return {"updates": state["core"]["updates"], "probe": settings, **summarise(rows, gammas)}
 
