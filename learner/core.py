@@ -209,7 +209,7 @@ class LearningCore:
         if self.predictive:
             losses.update(self._representation_losses(uniform))
             ddpg_batch = phi_batch(self.nets.gvf, uniform, reward, keep_features=bool(self.offset_steer))
-            if self.offset_steer:
+            if self.offset_steer and self.offset_steer.on(self.updates):
                 losses["actor_offset"] = self.offset_steer(ddpg_batch, uniform["speed"], uniform["last_action"])
         else:
             ddpg_batch = observation_batch(uniform, reward, lowdim=self.nets.representation == "lowdim")

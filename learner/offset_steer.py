@@ -27,10 +27,10 @@ FEATURES = "gvf_features"  # the GVF trunk's features of s, kept by phi_batch fo
 class OffsetSteer:
     """w * mean over the chosen gammas of v_alpha(s, last steering := pi's)^2, differentiable in the actor."""
 
-    def __init__(self, gvf: nn.Module, actor: nn.Module, columns: list[int], weight: float):
+    def __init__(self, gvf: nn.Module, actor: nn.Module, columns: list[int], weight: float, after: int = 0):
         if getattr(gvf, "mirror_last", None) is not None:
             raise ValueError("scale.actor_offset_weight needs scale.mirror_gvf=false (it reads the head of one pass)")
-        self.gvf, self.actor, self.weight = gvf, actor, weight
+        self.gvf, self.actor, self.weight, self.after = gvf, actor, weight, after
         self.columns = torch.as_tensor(columns)
 
     @classmethod
@@ -47,7 +47,11 @@ class OffsetSteer:
             raise ValueError(f"scale.actor_offset_gammas {missing} are not in agent.gammas {gammas}")
         alpha = prediction_columns(agent, "alpha")
         columns = [alpha.start + gammas.index(g) for g in scale.actor_offset_gammas]
-        return cls(nets.gvf, nets.actor, columns, scale.actor_offset_weight)
+        return cls(nets.gvf, nets.actor, columns, scale.actor_offset_weight, scale.actor_offset_after)
+
+    def on(self, updates: int) -> bool:
+        """Whether the term applies at this update count (`scale.actor_offset_after`)."""
+        return updates >= self.after
 
     def __call__(self, batch: TensorDictBase, speed: Tensor, last_action: Tensor) -> Tensor:
         steer = self.actor(batch["phi"])[..., :1]

@@ -90,7 +90,18 @@ def test_the_learning_core_applies_and_reports_the_term_from_the_scale():
     assert LearningCore(image, scale, seed=0).offset_steer is None  # no predictions to read
 
 
+def test_the_term_starts_after_the_set_number_of_updates():
+    data = lanedrive_data()
+    scale = dataclasses.replace(TINY, actor_offset_weight=1.0, actor_offset_gammas=[0.9], actor_offset_after=2)
+    core = LearningCore(AgentConfig(name="gvf_ddpg", metrics_every=1), scale, seed=0)
+    core.add(data[:300])
+    metrics = [core.update() for _ in range(4)]
+    assert ["losses/actor_offset" in m for m in metrics] == [False, False, True, True]
+
+
 def test_what_the_term_cannot_read_is_refused_naming_the_field():
+    with pytest.raises(ValueError, match="scale.actor_offset_after must be >= 0"):
+        check_scale(dataclasses.replace(TINY, actor_offset_after=-1))
     with pytest.raises(ValueError, match="scale.actor_offset_weight must be >= 0"):
         check_scale(dataclasses.replace(TINY, actor_offset_weight=-1.0))
     with pytest.raises(ValueError, match="scale.actor_offset_gammas must name"):

@@ -181,6 +181,8 @@ class ScaleConfig:
     """w of w * mean v_alpha(s, last steering := the actor's)^2 added to GVF-DDPG's actor loss: the steering the predictions say centres the car (learner.offset_steer); 0: none, the paper."""
     actor_offset_gammas: list[float] = field(default_factory=lambda: [0.0, 0.5])
     """actor_offset_weight: the alpha predictions (by their agent.gammas) the term reads; the short ones slope the true way along the steering (actors.evaluation.prediction_probe)."""
+    actor_offset_after: int = 0
+    """actor_offset_weight applies from this many updates on (0: from the first), so the first laps come as without it."""
 
 
 SQUASHES = ("clip", "tanh")
@@ -261,6 +263,8 @@ def check_scale(scale: ScaleConfig) -> None:
         raise ValueError(f"scale.critic_steer_penalty_after must be >= 0, got {scale.critic_steer_penalty_after}")
     if not scale.actor_offset_weight >= 0.0:
         raise ValueError(f"scale.actor_offset_weight must be >= 0, got {scale.actor_offset_weight}")
+    if scale.actor_offset_after < 0:
+        raise ValueError(f"scale.actor_offset_after must be >= 0, got {scale.actor_offset_after}")
     if scale.actor_offset_weight and not scale.actor_offset_gammas:
         raise ValueError("scale.actor_offset_gammas must name at least one of agent.gammas")
     if scale.td3_actor_delay < 1:
