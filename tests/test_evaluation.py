@@ -47,13 +47,14 @@ def test_a_slower_control_rate_laps_and_counts_reward_per_second_at_its_own_rate
     assert m["reward_per_s"] == pytest.approx(5 * m["reward_per_step"])  # 5 steps per second, not 10
 
 
-def test_the_best_evaluation_has_most_laps_then_least_near_out_of_lane_then_reward_per_second():
-    def v(laps, near_out, reward):
-        return {"lap_completed": laps, "near_out_of_lane": near_out, "reward_per_s": reward}
+def test_the_best_evaluation_has_most_laps_then_least_near_out_then_least_abs_alpha_then_reward_per_second():
+    def v(laps, near_out, reward, alpha=0.05):
+        return {"lap_completed": laps, "near_out_of_lane": near_out, "reward_per_s": reward, "offcenteredness": alpha}
 
     assert better(v(0.0, 0.5, 1.0), None)
     assert better(v(0.5, 0.2, 1.0), v(0.25, 0.0, 9.0))  # laps first
     assert better(v(0.5, 0.01, 1.0), v(0.5, 0.02, 9.0))  # then the safer, though slower
+    assert better(v(0.5, 0.0, 1.0, alpha=0.02), v(0.5, 0.0, 9.0, alpha=0.2))  # then the centred, though slower
     assert better(v(0.5, 0.01, 2.0), v(0.5, 0.01, 1.0))  # then reward per second
     assert not better(v(0.5, 0.01, 1.0), v(0.5, 0.01, 1.0))  # the first of equals is kept
 
