@@ -7,6 +7,10 @@ from __future__ import annotations
 BEST = "best-policy.pt"
 """File name, in a run's checkpoints folder, of the policy of the best validation so far."""
 
+RANKING = "laps, near-out-of-lane, mean abs(alpha), reward per second"
+"""`selection_key` in words: study summaries record it, so the ones made under an earlier ranking
+("laps, near-out-of-lane, reward per second" until 2026-12-07) can be told apart."""
+
 
 def selection_key(mean: dict) -> tuple:
     """How validations rank: most laps, then the least time near the lane's edge, then the least mean

@@ -11,7 +11,7 @@ from actors.evaluation.evaluate import evaluate
 from actors.evaluation.policies import checkpoint_policy, kinematic_policy
 from common.config.env import VehicleConfig
 from common.launch import train
-from common.selection import better, selection_key
+from common.selection import RANKING, better, selection_key
 from tests.helpers import BIN, TINY, compose_run
 
 FIGURES = ("lane_centeredness.png", "distributions.png")
@@ -140,7 +140,7 @@ def test_short_training_then_eval_and_comparison_of_its_checkpoint_write_tables_
     record = summarize(run_dir, start=lines[0]["time"] - 60, job={"variant": "gvf_ddpg", "seed": 0})
     assert [e["updates"] for e in record["evaluations"]] == [x["updates"] for x in lines]
     assert record["last"]["clean"]["mean"]["lap_completed"] >= 0 and len(record["last"]["damaged"]["drives"]) == 12
-    assert record["selected"]["updates"] == best["updates"]
+    assert record["selected"]["updates"] == best["updates"] and record["selected_by"] == RANKING
     assert record["learner"]["updates"] and len(record["learner"]["diag/dq_dsteer_abs"]) == len(
         record["learner"]["updates"]
     )

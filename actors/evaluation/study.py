@@ -13,8 +13,8 @@ interrupted job starts again; its partial folder is moved aside as `<job>.interr
 run that ends short of its update budget, or without one of its minutes, writes no summary). A
 summary holds the run's periodic evaluations (minute, updates, test and validation metrics,
 per road: lap, episode length, where the drive ended) and the final policies (the last
-checkpoint and the validation-selected best-policy.pt) driven on the test roads, clean and with
-damaged markings, with each clean drive's lane centeredness along the lap (downsampled), and the
+checkpoint and the validation-selected best-policy.pt, with the ranking that selected it) driven on
+the test roads, clean and with damaged markings, with each clean drive's lane centeredness along the lap (downsampled), and the
 learner's diagnostics binned every 500 updates (`learner_curves`).
 """
 
@@ -36,6 +36,7 @@ from actors.evaluation.learner_curves import learner_curves
 from actors.evaluation.main import DEFAULT_DAMAGE
 from actors.evaluation.periodic import BEST
 from actors.evaluation.policies import checkpoint_policy
+from common.selection import RANKING
 
 BIN = Path(sys.executable).parent
 VARIANTS = ("gvf_ddpg", "gvf_ddpg_g0", "gvf_ddpg_g095", "ddpg_image", "ddpg_lowdim")
@@ -111,6 +112,7 @@ def summarize(run_dir: Path, start: float, job: dict) -> dict:
         "evaluations": evaluations,
         "last": final_drives(run_dir / "checkpoints"),
         "selected": final_drives(run_dir / "checkpoints" / BEST, traces=False),
+        "selected_by": RANKING,
         "learner": learner_curves(run_dir / "tb"),
     }
 
