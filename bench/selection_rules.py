@@ -6,9 +6,9 @@ roads, over finished runs: the measurement behind `common.selection.selection_ke
 A run is a run folder (its eval.jsonl) or a study summary (docs/results/**/seedN.json, whose
 evaluations carry the same validation and test means). Each rule ranks the validation metrics of
 every evaluation; like the evaluator, the first of equals is kept. A rule is better when its picks
-lap more of the test roads, more of them lap all but one (>= 11 of 12), and more lap that way centred (near-out-of-lane <= 0.01 and
-mean abs(alpha) <= 0.1, issue 11's bar). `oracle_centred` counts the runs where any evaluation
-reached that bar: the most a rule could pick.
+lap more of the test roads, more of them lap all but one (>= 11 of 12), and more lap that way
+centred (near-out-of-lane <= 0.01 and mean abs(alpha) <= 0.1, issue 11's bar). `oracle_centred`
+counts the runs where any evaluation reached that bar: the most a rule could pick.
 """
 
 from __future__ import annotations
@@ -17,18 +17,13 @@ import argparse
 import json
 from pathlib import Path
 
-from common.selection import selected
+from common.selection import selected, selection_key
 
 RULES = {
     "laps_then_reward": lambda v: (v["lap_completed"], v["reward_per_s"]),
     "laps_then_near_out_then_reward": lambda v: (v["lap_completed"], -v["near_out_of_lane"], v["reward_per_s"]),
     "laps_then_abs_alpha_then_reward": lambda v: (v["lap_completed"], -v["offcenteredness"], v["reward_per_s"]),
-    "laps_then_near_out_then_abs_alpha": lambda v: (
-        v["lap_completed"],
-        -v["near_out_of_lane"],
-        -v["offcenteredness"],
-        v["reward_per_s"],
-    ),
+    "laps_then_near_out_then_abs_alpha": selection_key,  # the evaluator's
 }
 
 
@@ -36,14 +31,14 @@ def test_laps(evaluation: dict) -> int:
     return round(evaluation["mean"]["lap_completed"] * len(evaluation["drives"]))
 
 
+def all_but_one(evaluation: dict) -> bool:
+    return test_laps(evaluation) >= len(evaluation["drives"]) - 1
+
+
 def centred(evaluation: dict) -> bool:
     """Issue 11's bar on the test roads: >= 11 of 12 laps, near-out <= 0.01, mean abs(alpha) <= 0.1."""
     m = evaluation["mean"]
-    return (
-        test_laps(evaluation) >= len(evaluation["drives"]) - 1
-        and m["near_out_of_lane"] <= 0.01
-        and m["offcenteredness"] <= 0.1
-    )
+    return all_but_one(evaluation) and m["near_out_of_lane"] <= 0.01 and m["offcenteredness"] <= 0.1
 
 
 def picks(evaluations: list[dict]) -> dict:
@@ -53,7 +48,7 @@ def picks(evaluations: list[dict]) -> dict:
         out[name] = {
             "updates": best["updates"],
             "test_laps": test_laps(best),
-            "laps_all_but_one": test_laps(best) >= len(best["drives"]) - 1,
+            "laps_all_but_one": all_but_one(best),
             "centred": centred(best),
             "reward_per_s": best["mean"]["reward_per_s"],
         }
@@ -75,15 +70,16 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("runs", nargs="+", type=Path)
     parser.add_argument("--quiet", action="store_true", help="only the JSON line")
+    args = parser.parse_args()
     runs, oracle = {}, 0
-    for source in parser.parse_args().runs:
+    for source in args.runs:
         evaluations = load(source)
         if not evaluations:
             continue
         name = source.name if source.is_dir() else str(source)
         runs[name] = picks(evaluations)
         oracle += any(map(centred, evaluations))
-        if not parser.parse_args().quiet:
+        if not args.quiet:
             print(name, {k: v["test_laps"] for k, v in runs[name].items()})
     n = len(runs)
     totals = {

@@ -3,10 +3,11 @@ broadcast policy, drives the held-out roads without exploration noise, and logs 
 under eval/ in TensorBoard and as a line of eval.jsonl in the run folder (for learning curves).
 It runs in its own process, so training never waits for it. Each evaluation also drives the
 validation roads (`eval.validation_tracks`: procedural roads, neither train nor test; on TORCS,
-roads.json's validation roads, train roads held out of sampling), and the
-policy of the best validation so far (most laps, then least near-out-of-lane, then least mean abs(alpha), then reward per second) is kept as
-checkpoints/best-policy.pt, which gvf-eval and the comparison load like a learner checkpoint.
-Choosing on the test roads themselves would make any number reported from that policy optimistic."""
+roads.json's validation roads, train roads held out of sampling), and the policy of the best
+validation so far (`common.selection`: most laps, then least near-out-of-lane, then least mean
+abs(alpha), then reward per second) is kept as checkpoints/best-policy.pt, which gvf-eval and the
+comparison load like a learner checkpoint. Choosing on the test roads themselves would make any
+number reported from that policy optimistic."""
 
 from __future__ import annotations
 

@@ -14,8 +14,8 @@ run that ends short of its update budget, or without one of its minutes, writes 
 summary holds the run's periodic evaluations (minute, updates, test and validation metrics,
 per road: lap, episode length, where the drive ended) and the final policies (the last
 checkpoint and the validation-selected best-policy.pt, with the ranking that selected it) driven on
-the test roads, clean and with damaged markings, with each clean drive's lane centeredness along the lap (downsampled), and the
-learner's diagnostics binned every 500 updates (`learner_curves`).
+the test roads, clean and with damaged markings, with each clean drive's lane centeredness along
+the lap (downsampled), and the learner's diagnostics binned every 500 updates (`learner_curves`).
 """
 
 from __future__ import annotations
