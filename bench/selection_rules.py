@@ -27,12 +27,12 @@ RULES = {
 }
 
 
-def test_laps(evaluation: dict) -> int:
+def laps_on_test(evaluation: dict) -> int:
     return round(evaluation["mean"]["lap_completed"] * len(evaluation["drives"]))
 
 
 def all_but_one(evaluation: dict) -> bool:
-    return test_laps(evaluation) >= len(evaluation["drives"]) - 1
+    return laps_on_test(evaluation) >= len(evaluation["drives"]) - 1
 
 
 def centred(evaluation: dict) -> bool:
@@ -47,7 +47,7 @@ def picks(evaluations: list[dict]) -> dict:
         best = selected(evaluations, key)
         out[name] = {
             "updates": best["updates"],
-            "test_laps": test_laps(best),
+            "test_laps": laps_on_test(best),
             "laps_all_but_one": all_but_one(best),
             "centred": centred(best),
             "reward_per_s": best["mean"]["reward_per_s"],
