@@ -26,7 +26,7 @@ def lapped_all(evaluations: list[dict]) -> bool:
 
 
 def summaries(roots: list[Path], variant: str):
-    """(path, summary) of every study summary of `variant` under the roots."""
+    """Every study summary of `variant` under the roots."""
     for root in roots:
         for path in sorted(root.rglob("seed*.json")):
             try:
@@ -34,12 +34,12 @@ def summaries(roots: list[Path], variant: str):
             except (OSError, ValueError):
                 continue
             if isinstance(data, dict) and data.get("variant") == variant and data.get("evaluations"):
-                yield path, data
+                yield data
 
 
 def census(roots: list[Path], variant: str, speed: float, window: tuple[int, int]) -> dict:
     seeds: dict[int, dict] = defaultdict(lambda: {"runs": 0, "crept": 0, "crept_then_lapped": 0})
-    for _, data in summaries(roots, variant):
+    for data in summaries(roots, variant):
         evaluations = [e for e in data["evaluations"] if isinstance(e, dict) and "mean" in e]
         c = crept(evaluations, speed, window)
         if c is None:
