@@ -210,11 +210,12 @@ class LearningCore:
             losses.update(self._representation_losses(uniform))
             ddpg_batch = phi_batch(self.nets.gvf, uniform, reward, keep_features=bool(self.offset_steer))
             if self.offset_steer and self.offset_steer.on(self.updates):
-                losses["actor_offset"] = self.offset_steer(ddpg_batch, uniform["speed"], uniform["last_action"])
+                losses.update(self.offset_steer(ddpg_batch, uniform["speed"], uniform["last_action"]))
         else:
             ddpg_batch = observation_batch(uniform, reward, lowdim=self.nets.representation == "lowdim")
         loss_ddpg, out = self.ddpg.loss(ddpg_batch)
-        return self._apply(loss_ddpg + sum(losses.values()), losses, out, ddpg_batch, uniform["alpha"])
+        total = loss_ddpg + sum(v for k, v in losses.items() if "/" not in k)  # "x/y" names a diagnostic
+        return self._apply(total, losses, out, ddpg_batch, uniform["alpha"])
 
     def update_representation(self) -> dict[str, float]:
         """Algorithm 2's update (offline): lines 11-17 alone, the GVFs and g without DDPG."""
@@ -326,15 +327,9 @@ class LearningCore:
             metrics["train/rho_bar"] = self.replay.rho_bar
             metrics.update(self.insert_rho.metrics())
             if self.held_out is not None:
-                metrics.update(
-                    prediction_error(
-                        self.nets.gvf,
-                        self.held_out,
-                        self.agent.cumulants,
-                        self.agent.gammas,
-                        terminal=self.agent.gvf_terminal,
-                    )
-                )
+                a = self.agent
+                error = prediction_error(self.nets.gvf, self.held_out, a.cumulants, a.gammas, terminal=a.gvf_terminal)
+                metrics.update(error)
         return metrics
 
     # --- weights and checkpoints ---------------------------------------------------------------

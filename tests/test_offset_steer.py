@@ -56,7 +56,7 @@ def test_the_term_moves_the_steering_to_where_the_predicted_offset_is_zero_and_n
     before = (actor(td["phi"])[:, 0] - target).abs().mean().item()
     for _ in range(400):
         optimizer.zero_grad()
-        loss = steer(td, speed, last)
+        loss = steer(td, speed, last)["actor_offset"]
         loss.backward()
         optimizer.step()
     after = (actor(td["phi"])[:, 0] - target).abs().mean().item()
@@ -72,9 +72,33 @@ def test_only_the_steering_is_replaced_the_speed_action_stays_the_last_one():
         gvf.head.weight[2, -1] = 1.0  # alpha at the third gamma reads the last speed action only
     td, speed, last = batch(gvf)
     actor = BranchedActor(td["phi"].shape[-1], [16], n_actions=2)
-    loss = OffsetSteer(gvf, actor, columns=[2], weight=2.0)(td, speed, last)
+    loss = OffsetSteer(gvf, actor, columns=[2], weight=2.0)(td, speed, last)["actor_offset"]
     assert torch.allclose(loss, 2.0 * last[:, 1].pow(2).mean())
     loss.backward()
+    assert all(p.grad is None or p.grad.abs().sum() == 0 for p in actor.parameters())
+
+
+def test_the_guard_applies_the_term_only_where_the_prediction_slopes_the_simulators_way():
+    gvf, _ = linear_gvf()
+    with torch.no_grad():  # gamma column 3 turned: it slopes against the steering
+        gvf.head.weight[3, gvf.trunk.out_dim + 1] = -0.8
+    td, speed, last = batch(gvf)
+    actor = BranchedActor(td["phi"].shape[-1], [16], n_actions=2)
+    plain = OffsetSteer(gvf, actor, columns=[2, 3], weight=1.0)(td, speed, last)
+    guarded = OffsetSteer(gvf, actor, columns=[2, 3], weight=1.0, guard=True)(td, speed, last)
+    assert torch.allclose(guarded["diag/actor_offset_applies"], torch.tensor(0.5))
+    only_true = OffsetSteer(gvf, actor, columns=[2], weight=0.5)(td, speed, last)["actor_offset"]
+    assert torch.allclose(guarded["actor_offset"], only_true)  # the turned column adds nothing
+    assert guarded["actor_offset"] < plain["actor_offset"] and "diag/actor_offset_applies" not in plain
+
+
+def test_a_guarded_term_leaves_the_steering_alone_where_every_slope_has_turned():
+    gvf, _ = linear_gvf(steer_gain=-0.8)
+    td, speed, last = batch(gvf)
+    actor = BranchedActor(td["phi"].shape[-1], [16], n_actions=2)
+    out = OffsetSteer(gvf, actor, columns=[0, 1, 2], weight=1.0, guard=True)(td, speed, last)
+    assert out["diag/actor_offset_applies"] == 0
+    out["actor_offset"].backward()
     assert all(p.grad is None or p.grad.abs().sum() == 0 for p in actor.parameters())
 
 
@@ -86,6 +110,11 @@ def test_the_learning_core_applies_and_reports_the_term_from_the_scale():
     core.add(data[:300])
     metrics = [core.update() for _ in range(3)]
     assert any(metrics) and all(m["losses/actor_offset"] > 0 for m in metrics if m)
+    guarded = dataclasses.replace(scale, actor_offset_guard=True)
+    core = LearningCore(AgentConfig(name="gvf_ddpg", metrics_every=1), guarded, seed=0)
+    core.add(data[:300])
+    metrics = [m for m in (core.update() for _ in range(3)) if m]
+    assert metrics and all(0 <= m["diag/actor_offset_applies"] <= 1 for m in metrics)
     image = AgentConfig(name="ddpg_image", representation="image")
     assert LearningCore(image, scale, seed=0).offset_steer is None  # no predictions to read
 
@@ -104,6 +133,8 @@ def test_what_the_term_cannot_read_is_refused_naming_the_field():
         check_scale(dataclasses.replace(TINY, actor_offset_after=-1))
     with pytest.raises(ValueError, match="scale.actor_offset_weight must be >= 0"):
         check_scale(dataclasses.replace(TINY, actor_offset_weight=-1.0))
+    with pytest.raises(ValueError, match="scale.actor_offset_guard needs scale.actor_offset_weight > 0"):
+        check_scale(dataclasses.replace(TINY, actor_offset_guard=True))
     with pytest.raises(ValueError, match="scale.actor_offset_gammas must name"):
         check_scale(dataclasses.replace(TINY, actor_offset_weight=1.0, actor_offset_gammas=[]))
     scale = dataclasses.replace(TINY, actor_offset_weight=1.0, actor_offset_gammas=[0.8])
