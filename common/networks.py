@@ -19,6 +19,7 @@ network, whose `state_dict` is what the learner broadcasts to the actors.
 
 from __future__ import annotations
 
+import math
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 
@@ -96,6 +97,9 @@ class BranchedActor(nn.Module):
     so pi(Mx) is pi(x) with the steering negated and x = Mx (a centred car on a straight road) steers
     exactly 0. It is a buffer, so an actor built without it refuses these weights.
 
+    `speed_init` in (-1, 1) is the speed branch's initial output (its last bias, through the squash):
+    0, the paper's near-zero initial actions; below 0 the first drives are slower (`scale.actor_speed_init`).
+
     `steer_increment` > 0 makes the steering integrate: x's last two entries are the last action
     (phi's layout), and the steering is clip(last steering + steer_increment * out, -1, 1), so a
     weak feedback gain still removes a bend's steady-state offset (docs/results.md "Lever IS").
@@ -110,13 +114,21 @@ class BranchedActor(nn.Module):
         squash: str = "clip",
         mirror_sign: Tensor | None = None,
         steer_increment: float = 0.0,
+        speed_init: float = 0.0,
     ):
         super().__init__()
         if squash not in SQUASHES:
             raise ValueError(f"squash must be one of {SQUASHES}, got {squash!r}")
+        if not -1.0 < speed_init < 1.0:
+            raise ValueError(
+                f"speed_init must be in (-1, 1) (the clip passes no gradient at its ends), got {speed_init}"
+            )
         self.branches = nn.ModuleList(mlp(in_dim, hidden, 1) for _ in range(n_actions))
         for branch in self.branches:
             _init_last_layer(branch)
+        if n_actions > 1:  # the bias that squashes to speed_init
+            bias = speed_init if squash == "clip" else math.atanh(speed_init)
+            nn.init.constant_(self.branches[1][-1].bias, bias)
         self.squash = squash
         if mirror_sign is not None and mirror_sign.shape != (in_dim,):
             raise ValueError(f"mirror_sign must have shape ({in_dim},), got {tuple(mirror_sign.shape)}")
@@ -162,10 +174,10 @@ class ImageEncoder(nn.Module):
 class ImageActor(nn.Module):
     """DDPG-Image / LowDim actor: encoder, then one 512-256-1 branch per action."""
 
-    def __init__(self, encoder: ImageEncoder, hidden: Sequence[int], squash: str = "clip"):
+    def __init__(self, encoder: ImageEncoder, hidden: Sequence[int], squash: str = "clip", speed_init: float = 0.0):
         super().__init__()
         self.encoder = encoder
-        self.head = BranchedActor(encoder.out_dim, hidden, squash=squash)
+        self.head = BranchedActor(encoder.out_dim, hidden, squash=squash, speed_init=speed_init)
 
     def forward(self, image: Tensor, speed: Tensor, last_action: Tensor, lowdim: Tensor | None = None) -> Tensor:
         return self.head(self.encoder(image, speed, last_action, lowdim))
@@ -283,12 +295,13 @@ def make_policy(agent: AgentConfig, scale: ScaleConfig) -> Policy:
             squash=actor_squash(agent, scale),
             mirror_sign=sign,
             steer_increment=scale.steer_increment,
+            speed_init=scale.actor_speed_init,
         )
         return Policy("predictive", actor, gvf)
     lowdim = scale.lowdim_width if agent.representation == "lowdim" else 0
-    actor = ImageActor(
-        ImageEncoder(scale.conv_channels, lowdim), scale.image_policy_hidden, squash=actor_squash(agent, scale)
-    )
+    encoder = ImageEncoder(scale.conv_channels, lowdim)
+    squash = actor_squash(agent, scale)
+    actor = ImageActor(encoder, scale.image_policy_hidden, squash=squash, speed_init=scale.actor_speed_init)
     return Policy(agent.representation, actor)
 
 

@@ -11,7 +11,7 @@ import torch
 from hydra import compose, initialize_config_dir
 from omegaconf import OmegaConf
 
-from common.config.agent import AgentConfig, ScaleConfig, register
+from common.config.agent import AgentConfig, ScaleConfig, check_scale, register
 from common.critics import AdvantageCritic, BranchedCritic
 from common.layers import PilotNetTrunk
 from common.networks import (
@@ -102,6 +102,24 @@ def test_actor_last_layers_are_near_zero_and_outputs_clipped():
         torch.nn.init.constant_(branch[-1].bias, 5.0)
     assert torch.all(actor(x) == 1.0)
     assert torch.all(BranchedActor(13, [8], squash="tanh")(x).abs() < 1.0)
+
+
+@pytest.mark.parametrize("variant", ["gvf_ddpg", "ddpg_image"])
+@pytest.mark.parametrize("squash", ["clip", "tanh"])
+def test_the_scales_speed_init_sets_the_first_speed_actions_and_leaves_the_steering(variant, squash):
+    agent, scale = load(variant, "small")
+    slow = dataclasses.replace(scale, actor_speed_init=-0.6, actor_squash=squash)
+    torch.manual_seed(0)
+    policy = make_policy(agent, slow)
+    head = policy.actor if variant == "gvf_ddpg" else policy.actor.head
+    x = torch.randn(32, head.branches[0][0].in_features)
+    out = head(x)
+    assert torch.allclose(out[:, 1], torch.full((32,), -0.6), atol=0.02)  # 0.6 v_max, 12 m/s at v_max 20
+    assert out[:, 0].abs().max() < 0.05  # the steering's init is the paper's
+    out[:, 1].sum().backward()  # inside the clip: the critic can still move the speed either way
+    assert head.branches[1][-1].bias.grad.abs().item() > 0
+    with pytest.raises(ValueError, match="scale.actor_speed_init must be in"):
+        check_scale(dataclasses.replace(scale, actor_speed_init=-1.0))
 
 
 @pytest.mark.parametrize("squash", ["clip", "tanh"])
