@@ -27,7 +27,9 @@ def test_runs_are_counted_per_seed_by_their_early_speed(tmp_path):
 
     assert result["runs"] == 3 and result["crept"] == 2 and result["crept_then_lapped"] == 1
     assert result["per_seed"] == {
-        "0": {"runs": 2, "crept": 1, "crept_then_lapped": 1},
-        "1": {"runs": 1, "crept": 1, "crept_then_lapped": 0},
+        "0": {"runs": 2, "crept": 1, "crept_then_lapped": 1, "lapped_by": 1},  # its all 12 came at 4,000
+        "1": {"runs": 1, "crept": 1, "crept_then_lapped": 0, "lapped_by": 0},
     }
+    assert result["by"] == 5000 and result["lapped_by"] == 1
+    assert census([tmp_path], "gvf_ddpg", 14.8, (2000, 3500), by=3500)["lapped_by"] == 0
     assert result["seeds_with_both"] == 1 and result["seeds_with_2_or_more_runs"] == 1
