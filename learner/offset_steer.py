@@ -25,6 +25,7 @@ from torch.func import functional_call, jvp
 from common.networks import prediction_columns
 
 FEATURES = "gvf_features"  # the GVF trunk's features of s, kept by phi_batch for this term
+SHORT = 0.5  # scale.actor_offset_gammas=None reads the predictions up to this gamma: their slope is the simulator's
 
 
 class OffsetSteer:
@@ -40,18 +41,23 @@ class OffsetSteer:
 
     @classmethod
     def build(cls, nets, agent, scale) -> OffsetSteer | None:
-        """None where the weight is 0 or the variant has no predictions; refuses gammas the GVFs do
-        not predict, or no alpha cumulant."""
+        """None where the weight is 0, the variant has no predictions, or (gammas None) none at gamma <=
+        SHORT; refuses named gammas the GVFs do not predict, or no alpha cumulant."""
         if not scale.actor_offset_weight or nets.representation != "predictive":
             return None
         cumulants, gammas = list(agent.cumulants), list(agent.gammas)
         if "alpha" not in cumulants:
             raise ValueError(f"scale.actor_offset_weight needs the alpha cumulant, got agent.cumulants={cumulants}")
-        missing = [g for g in scale.actor_offset_gammas if g not in gammas]
+        chosen = scale.actor_offset_gammas
+        if chosen is None:
+            chosen = [g for g in gammas if g <= SHORT]
+            if not chosen:  # GVF-0.95: no short prediction to read
+                return None
+        missing = [g for g in chosen if g not in gammas]
         if missing:
             raise ValueError(f"scale.actor_offset_gammas {missing} are not in agent.gammas {gammas}")
         alpha = prediction_columns(agent, "alpha")
-        columns = [alpha.start + gammas.index(g) for g in scale.actor_offset_gammas]
+        columns = [alpha.start + gammas.index(g) for g in chosen]
         weight, after, guard = scale.actor_offset_weight, scale.actor_offset_after, scale.actor_offset_guard
         return cls(nets.gvf, nets.actor, columns, weight, after, guard)
 

@@ -42,6 +42,25 @@ def test_the_small_scale_trains_with_lever_g_and_the_paper_scale_keeps_the_paper
     assert compose_run(["env=torcs"]).env.gust_rate == 0.0  # TORCS refuses gusts
 
 
+LEVER_SI_OSG = (
+    "actor_speed_init",
+    "actor_offset_weight",
+    "actor_offset_gammas",
+    "actor_offset_after",
+    "actor_offset_guard",
+)
+
+
+def test_the_small_scale_starts_slow_and_pulls_the_steering_and_small_g_is_lever_g_without_them():
+    small, small_g = compose_run().scale, compose_run(["scale=small_g"]).scale
+    assert [getattr(small, k) for k in LEVER_SI_OSG] == [-0.8, 100.0, None, 5000, True]
+    assert [getattr(small_g, k) for k in LEVER_SI_OSG] == [0.0, 0.0, None, 0, False]
+    differ = {k for k in vars(small) if getattr(small, k) != getattr(small_g, k)}
+    assert differ == {"name", "actor_speed_init", "actor_offset_weight", "actor_offset_after", "actor_offset_guard"}
+    paper = compose_run(["scale=paper"]).scale
+    assert (paper.actor_speed_init, paper.actor_offset_weight) == (0.0, 0.0)  # the paper's init, no pull
+
+
 @pytest.mark.parametrize(
     "override, field",
     [("actor.num_envs=many", "num_envs"), ("env.lane_widht=3", "lane_widht"), ("env.direction=up", "direction")],

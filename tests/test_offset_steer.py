@@ -119,6 +119,16 @@ def test_the_learning_core_applies_and_reports_the_term_from_the_scale():
     assert LearningCore(image, scale, seed=0).offset_steer is None  # no predictions to read
 
 
+def test_unnamed_gammas_read_each_variants_short_predictions_and_none_leaves_the_term_off():
+    scale = dataclasses.replace(TINY, actor_offset_weight=1.0, actor_offset_gammas=None)
+    check_scale(scale)
+    five = LearningCore(AgentConfig(name="gvf_ddpg"), scale, seed=0).offset_steer
+    assert five.columns.tolist() == [0, 1]  # alpha at gamma 0 and 0.5 of 0, 0.5, 0.9, 0.95, 0.97
+    myopic = LearningCore(AgentConfig(name="gvf_ddpg_g0", gammas=[0.0]), scale, seed=0).offset_steer
+    assert myopic.columns.tolist() == [0]
+    assert LearningCore(AgentConfig(name="gvf_ddpg_g095", gammas=[0.95]), scale, seed=0).offset_steer is None
+
+
 def test_the_term_starts_after_the_set_number_of_updates():
     data = lanedrive_data()
     scale = dataclasses.replace(TINY, actor_offset_weight=1.0, actor_offset_gammas=[0.9], actor_offset_after=2)

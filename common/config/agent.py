@@ -179,8 +179,8 @@ class ScaleConfig:
     """critic_steer_penalty applies from this many DDPG updates on (0: from the first)."""
     actor_offset_weight: float = 0.0
     """w of w * mean v_alpha(s, last steering := the actor's)^2 added to GVF-DDPG's actor loss: the steering the predictions say centres the car (learner.offset_steer); 0: none, the paper."""
-    actor_offset_gammas: list[float] = field(default_factory=lambda: [0.0, 0.5])
-    """actor_offset_weight: the alpha predictions (by their agent.gammas) the term reads; the short ones slope the true way along the steering (actors.evaluation.prediction_probe)."""
+    actor_offset_gammas: Optional[list[float]] = None
+    """actor_offset_weight: the alpha predictions (by their agent.gammas) the term reads, each one the GVFs must predict; None: those the GVFs predict at gamma <= 0.5, the short ones that slope the true way along the steering (actors.evaluation.prediction_probe), none for GVF-0.95 (the term is then off)."""
     actor_offset_after: int = 0
     """actor_offset_weight applies from this many updates on (0: from the first), so the first laps come as without it."""
     actor_speed_init: float = 0.0
@@ -269,7 +269,7 @@ def check_scale(scale: ScaleConfig) -> None:
         raise ValueError(f"scale.actor_offset_weight must be >= 0, got {scale.actor_offset_weight}")
     if scale.actor_offset_after < 0:
         raise ValueError(f"scale.actor_offset_after must be >= 0, got {scale.actor_offset_after}")
-    if scale.actor_offset_weight and not scale.actor_offset_gammas:
+    if scale.actor_offset_weight and scale.actor_offset_gammas is not None and not scale.actor_offset_gammas:
         raise ValueError("scale.actor_offset_gammas must name at least one of agent.gammas")
     if not -1.0 < scale.actor_speed_init < 1.0:
         raise ValueError(f"scale.actor_speed_init must be in (-1, 1), got {scale.actor_speed_init}")
