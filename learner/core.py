@@ -112,6 +112,7 @@ class LearningCore:
             lr_actor_decay_after=scale.lr_actor_decay_after,
             steer_slope_penalty=scale.critic_steer_penalty,
             steer_slope_penalty_after=scale.critic_steer_penalty_after,
+            speed_hold=scale.actor_speed_hold,
             actor_min_q=scale.actor_min_q,
             actor_on_crash_memory=scale.crash_memory_actor,
             target_min_weight=scale.td3_target_min_weight,

@@ -53,6 +53,24 @@ def test_soft_update_moves_targets_by_tau_and_losses_touch_their_own_networks():
         assert torch.allclose(target, old + 0.001 * (online - old), atol=1e-7)
 
 
+def test_the_speed_hold_keeps_the_speed_branch_for_its_updates_then_lets_it_learn():
+    torch.manual_seed(0)
+    ddpg = make(3, 2, lr_actor=1e-2, lr_critic=1e-2, speed_hold=3)
+    steer, speed = (list(ddpg.actor.branches[i].parameters()) for i in (0, 1))
+    steer0, speed0 = [p.clone() for p in steer], [p.clone() for p in speed]
+    batch = random_batch(16)
+    for _ in range(3):
+        ddpg.update(batch)
+    assert all(torch.equal(a, b) for a, b in zip(speed0, speed))
+    assert not all(torch.equal(a, b) for a, b in zip(steer0, steer))
+    ddpg.update(batch)  # the 4th update steps the speed branch too
+    assert not all(torch.equal(a, b) for a, b in zip(speed0, speed))
+    with pytest.raises(ValueError, match="speed_hold must be >= 0"):
+        make(3, 2, speed_hold=-1)
+    with pytest.raises(ValueError, match="needs a branched actor"):
+        DDPG(torch.nn.Linear(3, 2), ddpg.critic, actor_in_keys=["phi"], critic_in_keys=["phi", "action"], speed_hold=1)
+
+
 def test_actor_step_size_decays_linearly_then_holds_and_resumes_where_it_was():
     torch.manual_seed(0)
     ddpg = make(3, 2, lr_actor=1e-3, lr_critic=1e-2, lr_actor_decay_updates=4, lr_actor_final=0.25)

@@ -120,6 +120,8 @@ def test_the_scales_speed_init_sets_the_first_speed_actions_and_leaves_the_steer
     assert head.branches[1][-1].bias.grad.abs().item() > 0
     with pytest.raises(ValueError, match="scale.actor_speed_init must be in"):
         check_scale(dataclasses.replace(scale, actor_speed_init=-1.0))
+    with pytest.raises(ValueError, match="scale.actor_speed_hold must be >= 0"):
+        check_scale(dataclasses.replace(scale, actor_speed_hold=-1))
 
 
 @pytest.mark.parametrize("squash", ["clip", "tanh"])

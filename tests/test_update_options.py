@@ -159,3 +159,17 @@ def test_without_the_crash_memory_in_the_actor_its_items_train_the_critic_and_no
     assert all(torch.allclose(a, b, atol=1e-6) for a, b in zip(actor, actor_calm))
     assert not all(torch.allclose(a, b, atol=1e-6) for a, b in zip(actor, actor_all))
     assert all(torch.allclose(a, b, atol=1e-6) for a, b in zip(critic, critic_all))  # the critic keeps them
+
+
+@pytest.mark.parametrize("variant", ["gvf_ddpg", "ddpg_image"])
+def test_the_speed_hold_keeps_every_variants_speed_branch_for_its_updates(data, variant):
+    scale = dataclasses.replace(TINY, actor_speed_hold=4, td3=False)
+    core = LearningCore(AgentConfig(name=variant, lr_actor=1e-2, metrics_every=100), scale, seed=0)
+    core.add(data[:300])
+    branch = core.ddpg.speed_branch
+    before = [p.clone() for p in branch.parameters()]
+    while core.ddpg.steps < 4:
+        core.update()
+    assert all(torch.equal(a, b) for a, b in zip(before, branch.parameters()))
+    core.update()
+    assert not all(torch.equal(a, b) for a, b in zip(before, branch.parameters()))

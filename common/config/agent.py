@@ -185,6 +185,8 @@ class ScaleConfig:
     """actor_offset_weight applies from this many updates on (0: from the first), so the first laps come as without it."""
     actor_speed_init: float = 0.0
     """The actor's initial speed action, in (-1, 1) (its target speed v_max (0.75 + 0.25 a)): 0 as the paper (near-zero initial actions, 0.75 v_max); below 0 the first drives are slower."""
+    actor_speed_hold: int = 0
+    """The actor's speed branch is not stepped for this many updates (0: stepped from the first), so its target speed stays at actor_speed_init while the steering learns."""
     actor_offset_guard: bool = False
     """actor_offset_weight applies only where the prediction's slope along the steering is positive (the simulator's sign), so a turned slope switches it off."""
 
@@ -273,6 +275,8 @@ def check_scale(scale: ScaleConfig) -> None:
         raise ValueError("scale.actor_offset_gammas must name at least one of agent.gammas")
     if not -1.0 < scale.actor_speed_init < 1.0:
         raise ValueError(f"scale.actor_speed_init must be in (-1, 1), got {scale.actor_speed_init}")
+    if scale.actor_speed_hold < 0:
+        raise ValueError(f"scale.actor_speed_hold must be >= 0, got {scale.actor_speed_hold}")
     if scale.actor_offset_guard and not scale.actor_offset_weight:
         raise ValueError("scale.actor_offset_guard needs scale.actor_offset_weight > 0 (it guards that term)")
     if scale.td3_actor_delay < 1:
