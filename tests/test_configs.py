@@ -51,11 +51,12 @@ LEVER_SI_OSG = (
 )
 
 
-def test_the_small_scale_starts_slow_and_pulls_the_steering_and_small_g_is_lever_g_without_them():
-    small, small_g = compose_run().scale, compose_run(["scale=small_g"]).scale
-    assert [getattr(small, k) for k in LEVER_SI_OSG] == [-0.8, 100.0, None, 5000, True]
-    assert [getattr(small_g, k) for k in LEVER_SI_OSG] == [0.0, 0.0, None, 0, False]
-    differ = {k for k in vars(small) if getattr(small, k) != getattr(small_g, k)}
+def test_the_small_scale_is_lever_g_small_g_names_it_and_small_sig_starts_slow_and_pulls_the_steering():
+    small, small_g, sig = (compose_run([f"scale={name}"]).scale for name in ("small", "small_g", "small_sig"))
+    assert [getattr(small, k) for k in LEVER_SI_OSG] == [0.0, 0.0, None, 0, False]
+    assert {k for k in vars(small) if getattr(small, k) != getattr(small_g, k)} == {"name"}
+    assert [getattr(sig, k) for k in LEVER_SI_OSG] == [-0.8, 100.0, None, 5000, True]
+    differ = {k for k in vars(small) if getattr(small, k) != getattr(sig, k)}
     assert differ == {"name", "actor_speed_init", "actor_offset_weight", "actor_offset_after", "actor_offset_guard"}
     paper = compose_run(["scale=paper"]).scale
     assert (paper.actor_speed_init, paper.actor_offset_weight) == (0.0, 0.0)  # the paper's init, no pull
