@@ -36,9 +36,10 @@ data do not support then costs. `steer_slope_penalty_after` starts it after that
 Written here: torchrl's losses have no action-gradient penalty.
 
 `speed_hold` (an option, 0 by default) leaves the actor's speed branch unstepped for that many
-updates, so the first drives keep the initial target speed while the steering learns: measured, the
-speed rose to 13-14 m/s by 1,500 updates in every run, above the ~12 m/s of the 18 m bends, and the
-runs where it stayed there never lapped (docs/results.md).
+updates, so the first drives keep the initial target speed while the steering learns (the speed had
+risen to 13-14 m/s by 1,500 updates in every run, above the ~12 m/s of the 18 m bends). Measured
+(docs/results.md lever SH): held at 11 m/s a run lapped all 12 at 1,000 updates, and once released
+its speed crept as before.
 
 `lr_actor_decay_updates` (an option, 0 by default) lowers the actor's step size linearly to
 `lr_actor_final` of it over that many updates, so that a policy found early moves less later;
