@@ -30,13 +30,14 @@ def _tensors(arrays: dict) -> dict[str, torch.Tensor]:
 
 
 def ou_parameters(actor: ActorConfig) -> tuple[np.ndarray, np.ndarray]:
-    """(theta, sigma) per action (steering, target speed): the steering's own where set."""
+    """(theta, sigma) per action (steering, target speed): each action's own where set."""
 
     def pick(own, shared):
         return own if own is not None else shared
 
-    theta = np.array([pick(actor.ou_steer_theta, actor.ou_theta), actor.ou_theta], np.float32)
-    return theta, np.array([pick(actor.ou_steer_sigma, actor.ou_sigma), actor.ou_sigma], np.float32)
+    theta = [pick(actor.ou_steer_theta, actor.ou_theta), pick(actor.ou_speed_theta, actor.ou_theta)]
+    sigma = [pick(actor.ou_steer_sigma, actor.ou_sigma), pick(actor.ou_speed_sigma, actor.ou_sigma)]
+    return np.array(theta, np.float32), np.array(sigma, np.float32)
 
 
 class Acting:

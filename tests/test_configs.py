@@ -96,6 +96,8 @@ def test_bad_values_are_refused_naming_the_field(override, field):
         ("actor.ou_sigma=-0.1", "ou_sigma"),
         ("actor.ou_steer_theta=101", "ou_steer_theta"),
         ("actor.ou_steer_sigma=-1", "ou_steer_sigma"),
+        ("actor.ou_speed_theta=0", "ou_speed_theta"),
+        ("actor.ou_speed_sigma=-0.5", "ou_speed_sigma"),
         ("scale.steer_increment=-0.1", "steer_increment"),
         ("scale.offset_weight=0.5", "offset_weight"),
         ("scale.n_step=3 scale.offset_weight=2", "offset_weight"),

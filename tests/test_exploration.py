@@ -44,6 +44,18 @@ def test_per_action_parameters_make_the_steering_white_and_leave_the_speed_slow(
     assert np.array_equal(ou_parameters(ActorConfig())[0], [1.0, 1.0])  # unset: the shared values
 
 
+def test_the_target_speed_can_wander_wider_than_the_steering():
+    theta, sigma = ou_parameters(ActorConfig(ou_speed_sigma=0.4))
+    assert np.array_equal(theta, [1.0, 1.0])
+    ou = OrnsteinUhlenbeck(2000, 2, theta=theta, sigma=sigma, dt=0.01, seed=0)
+    for _ in range(1000):
+        ou.sample()
+    x0, x1 = ou.sample(), ou.sample()
+    assert abs(x0[:, 0].std() - 0.1 / np.sqrt(2.0)) < 0.006  # the paper's steering noise kept
+    assert abs(x0[:, 1].std() - 0.4 / np.sqrt(2.0)) < 0.02  # 1.4 m/s of target speed, the same 10-s wander
+    assert float(np.corrcoef(x0[:, 1], x1[:, 1])[0, 1]) > 0.97
+
+
 def test_reset_restarts_only_the_masked_envs():
     ou = OrnsteinUhlenbeck(4, 2, seed=1)
     for _ in range(100):

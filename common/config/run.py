@@ -41,6 +41,11 @@ class ActorConfig:
     steering's noise white, the target speed (acting through a 1-s lag) keeping the slow OU."""
     ou_steer_sigma: Optional[float] = None
     """The steering's own OU noise scale (None: ou_sigma)."""
+    ou_speed_theta: Optional[float] = None
+    """The target speed's own OU mean reversion (None: ou_theta)."""
+    ou_speed_sigma: Optional[float] = None
+    """The target speed's own OU noise scale (None: ou_sigma): wider, the replay holds drives through
+    the same bends at more than one speed, which the critic needs to learn what the speed costs there."""
     send_queue: int = 256
     """Chunks waiting for the network before the oldest is dropped (and counted)."""
     send_timeout_s: float = 0.5
@@ -248,11 +253,15 @@ def to_objects(cfg: Any) -> tuple[RunConfig, AgentConfig, ScaleConfig]:
     check_scale(run.scale)
     check_agent(run.agent)
     a = run.actor
-    for name in ("ou_theta", "ou_steer_theta"):  # past 1 the Euler step overshoots the mean: the noise oscillates
+    for name in (
+        "ou_theta",
+        "ou_steer_theta",
+        "ou_speed_theta",
+    ):  # past 1 the Euler step overshoots the mean: the noise oscillates
         theta = getattr(a, name)
         if theta is not None and not 0.0 < theta * a.ou_dt <= 1.0:
             raise ValueError(f"actor.{name} * actor.ou_dt must be in (0, 1], got {theta} * {a.ou_dt}")
-    for name in ("ou_sigma", "ou_steer_sigma"):
+    for name in ("ou_sigma", "ou_steer_sigma", "ou_speed_sigma"):
         if (getattr(a, name) or 0.0) < 0:
             raise ValueError(f"actor.{name} must be >= 0, got {getattr(a, name)}")
     if run.learner.rho_at not in RHO_AT:
