@@ -62,6 +62,15 @@ def test_the_small_scale_is_lever_g_small_g_names_it_and_small_sig_starts_slow_a
     assert (paper.actor_speed_init, paper.actor_offset_weight) == (0.0, 0.0)  # the paper's init, no pull
 
 
+def test_small_sn_is_small_sig_with_the_target_speeds_noise_widened_and_a_user_value_wins():
+    sig, sn = (compose_run([f"scale={name}"]) for name in ("small_sig", "small_sn"))
+    assert {k for k in vars(sig.scale) if getattr(sig.scale, k) != getattr(sn.scale, k)} == {"name"}
+    assert {k for k in vars(sig.actor) if getattr(sig.actor, k) != getattr(sn.actor, k)} == {"ou_speed_sigma"}
+    assert (sig.actor.ou_speed_sigma, sn.actor.ou_speed_sigma) == (None, 0.4)
+    assert compose_run(["scale=small_sn", "actor.ou_speed_sigma=0.2"]).actor.ou_speed_sigma == 0.2
+    assert compose_run([]).actor.ou_speed_sigma is None  # the other scales keep the paper's noise
+
+
 @pytest.mark.parametrize(
     "override, field",
     [("actor.num_envs=many", "num_envs"), ("env.lane_widht=3", "lane_widht"), ("env.direction=up", "direction")],
