@@ -253,11 +253,8 @@ def to_objects(cfg: Any) -> tuple[RunConfig, AgentConfig, ScaleConfig]:
     check_scale(run.scale)
     check_agent(run.agent)
     a = run.actor
-    for name in (
-        "ou_theta",
-        "ou_steer_theta",
-        "ou_speed_theta",
-    ):  # past 1 the Euler step overshoots the mean: the noise oscillates
+    # past 1 the Euler step overshoots the mean: the noise oscillates
+    for name in ("ou_theta", "ou_steer_theta", "ou_speed_theta"):
         theta = getattr(a, name)
         if theta is not None and not 0.0 < theta * a.ou_dt <= 1.0:
             raise ValueError(f"actor.{name} * actor.ou_dt must be in (0, 1], got {theta} * {a.ou_dt}")
