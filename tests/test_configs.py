@@ -158,11 +158,31 @@ def test_a_study_job_with_an_update_budget_ends_the_run_there_and_records_it(tmp
     monkeypatch.setattr(
         study.subprocess, "run", lambda cmd, **kw: ran.append((cmd, kw["timeout"])) or finish(cmd, 17800)
     )
-    path = study.run_job("gvf_ddpg", 1, 70, 500, tmp_path / "runs", tmp_path / "work", ["x.y=1"], updates=17800)
+    mine = "scale.crash_penalty=150"
+    path = study.run_job("gvf_ddpg", 1, 70, 500, tmp_path / "runs", tmp_path / "work", [mine], updates=17800)
     (cmd, timeout), record = ran[0], json.loads(path.read_text())
     assert "learner.max_updates=17800" in cmd and "max_seconds=4200" in cmd and timeout > 4200
-    assert cmd.index("learner.max_updates=17800") < cmd.index("x.y=1")  # an explicit override still wins
+    assert cmd.index("learner.max_updates=17800") < cmd.index(mine)  # an explicit override still wins
     assert record["updates_budget"] == 17800 and record["minutes"] == 70 and record["evaluations"] == []
+    assert record["scale"] == "small"  # the recipe it trained at, resolved as gvf-train composes it
+
+
+def test_a_resumed_study_refuses_a_job_at_another_recipe_than_its_summary_and_a_bad_override(tmp_path, monkeypatch):
+    import json
+
+    from actors.evaluation import study
+
+    done = study.summary_path(tmp_path / "runs", "gvf_ddpg", 0)
+    done.parent.mkdir(parents=True)
+    done.write_text(json.dumps({"scale": "small_g"}))
+    ran = []
+    monkeypatch.setattr(study.subprocess, "run", lambda cmd, **kw: ran.append(cmd))
+    with pytest.raises(RuntimeError, match="small_g, this job at small_sn: give the study another --out"):
+        study.run_job("gvf_ddpg", 0, 15, 500, tmp_path / "runs", tmp_path / "work", ["scale=small_sn"])
+    assert study.run_job("gvf_ddpg", 0, 15, 500, tmp_path / "runs", tmp_path / "work", ["scale=small_g"]) == done
+    with pytest.raises(Exception, match="no_such_field"):  # refused before a run is started
+        study.run_job("gvf_ddpg", 1, 15, 500, tmp_path / "runs", tmp_path / "work", ["scale.no_such_field=1"])
+    assert ran == []
 
 
 def test_a_rerun_study_job_moves_an_interrupted_attempt_aside_instead_of_mixing_it_in(tmp_path, monkeypatch):

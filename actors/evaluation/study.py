@@ -8,7 +8,8 @@ every table and figure; checkpoints stay in the scratch folder and are never com
 
 Hydra overrides for every run go last, after `--` (otherwise `--seeds` reads them as seeds).
 
-A job whose summary exists is skipped, so an interrupted study continues where it stopped (the
+A job whose summary exists is skipped, so an interrupted study continues where it stopped (a
+summary records the scale it trained at, and a job at another one under the same --out is refused; the
 interrupted job starts again; its partial folder is moved aside as `<job>.interrupted-<time>`; a
 run that ends short of its update budget, or without one of its minutes, writes no summary). A
 summary holds the run's periodic evaluations (minute, updates, test and validation metrics,
@@ -40,6 +41,7 @@ from common.selection import RANKING
 
 BIN = Path(sys.executable).parent
 VARIANTS = ("gvf_ddpg", "gvf_ddpg_g0", "gvf_ddpg_g095", "ddpg_image", "ddpg_lowdim")
+SCALE = "scale=small"  # the study's recipe unless an override after `--` names another
 TRACE_POINTS = 200  # lane centeredness along a lap, downsampled: the summary stays small
 DRIVE_KEYS = ("lap_completed", "episode_length")  # per road at each evaluation; the means carry the rest
 
@@ -57,6 +59,14 @@ def rounded(value, digits: int = 4):
 
 def summary_path(out: Path, variant: str, seed: int) -> Path:
     return out / variant / f"seed{seed}.json"
+
+
+def recipe(variant: str, overrides: list[str]) -> str:
+    """The scale a job trains at, composed as gvf-train will (a bad override is refused before the run):
+    a resumed study refuses to put summaries of two recipes under one --out."""
+    from common.cli import compose_run
+
+    return compose_run([f"agent={variant}", SCALE, *(o for o in overrides if not o.startswith("hydra."))]).scale.name
 
 
 def _trace(result: dict) -> dict:
@@ -149,8 +159,11 @@ def run_job(
 ) -> Path:
     """One training run and its summary; skipped if the summary exists. `updates` > 0 ends the run
     at that many learner updates (`minutes` is then only a cap)."""
-    path = summary_path(out, variant, seed)
+    scale, path = recipe(variant, overrides), summary_path(out, variant, seed)
     if path.exists():
+        done = json.loads(path.read_text()).get("scale")  # None: summaries written before it was recorded
+        if done not in (None, scale):
+            raise RuntimeError(f"{path} trained at scale {done}, this job at {scale}: give the study another --out")
         print(f"skip {variant} seed {seed}: {path} exists", flush=True)
         return path
     run_dir = work / f"{variant}-seed{seed}"
@@ -163,7 +176,7 @@ def run_job(
     cmd = [
         str(BIN / "gvf-train"),
         f"agent={variant}",
-        "scale=small",
+        SCALE,
         "actors.count=2",
         "progress=false",
         f"run=study-{variant}-{seed}",
@@ -196,6 +209,7 @@ def run_job(
     job = {
         "variant": variant,
         "seed": seed,
+        "scale": scale,
         "minutes": minutes,
         "updates_budget": updates,
         "eval_every": eval_every,
