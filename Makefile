@@ -13,9 +13,9 @@ $(STAMP): pyproject.toml
 	$(PY) -m pip install -e '.[test]'
 	touch $(STAMP)
 
-# A local run: Zenoh router, learner and 2 actors on the embedded simulator, small CPU config.
+# A local run: Zenoh router, learner and 2 actors on the embedded simulator, the default small CPU scale (scale=small_sn).
 train: $(STAMP)
-	$(VENV)/bin/gvf-train scale=small actors.count=2 $(ARGS)
+	$(VENV)/bin/gvf-train actors.count=2 $(ARGS)
 
 # The kinematic controller driving the held-out roads, with the camera shown as text.
 demo: $(STAMP)

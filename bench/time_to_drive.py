@@ -81,7 +81,6 @@ def main() -> None:
     cmd = [
         str(BIN / "gvf-train"),
         "agent=gvf_ddpg",
-        "scale=small",
         "actors.count=2",
         "progress=false",
         "run=time_to_drive",

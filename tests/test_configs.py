@@ -22,7 +22,8 @@ def test_every_group_option_composes(override):
 
 def test_root_defaults():
     run = compose_run()
-    assert (run.agent.name, run.scale.name, run.transport.backend) == ("gvf_ddpg", "small", "zenoh")
+    assert (run.agent.name, run.scale.name, run.transport.backend) == ("gvf_ddpg", "small_sn", "zenoh")
+    assert run.actor.ou_speed_sigma == 0.4 and compose_run(["scale=small"]).actor.ou_speed_sigma is None
     assert run.agent.gammas == [0.0, 0.5, 0.9, 0.95, 0.97]
 
 
@@ -68,7 +69,8 @@ def test_small_sn_is_small_sig_with_the_target_speeds_noise_widened_and_a_user_v
     assert {k for k in vars(sig.actor) if getattr(sig.actor, k) != getattr(sn.actor, k)} == {"ou_speed_sigma"}
     assert (sig.actor.ou_speed_sigma, sn.actor.ou_speed_sigma) == (None, 0.4)
     assert compose_run(["scale=small_sn", "actor.ou_speed_sigma=0.2"]).actor.ou_speed_sigma == 0.2
-    assert compose_run([]).actor.ou_speed_sigma is None  # the other scales keep the paper's noise
+    assert compose_run(["scale=paper"]).actor.ou_speed_sigma is None  # the other scales keep the paper's noise
+    assert compose_run(["actor.ou_speed_sigma=0.2"]).actor.ou_speed_sigma == 0.2  # also over the root default
 
 
 @pytest.mark.parametrize(
@@ -164,7 +166,7 @@ def test_a_study_job_with_an_update_budget_ends_the_run_there_and_records_it(tmp
     assert "learner.max_updates=17800" in cmd and "max_seconds=4200" in cmd and timeout > 4200
     assert cmd.index("learner.max_updates=17800") < cmd.index(mine)  # an explicit override still wins
     assert record["updates_budget"] == 17800 and record["minutes"] == 70 and record["evaluations"] == []
-    assert record["scale"] == "small"  # the recipe it trained at, resolved as gvf-train composes it
+    assert record["scale"] == "small_sn"  # the recipe it trained at, resolved as gvf-train composes it
 
 
 def test_a_resumed_study_refuses_a_job_at_another_recipe_than_its_summary_and_a_bad_override(tmp_path, monkeypatch):

@@ -41,7 +41,6 @@ from common.selection import RANKING
 
 BIN = Path(sys.executable).parent
 VARIANTS = ("gvf_ddpg", "gvf_ddpg_g0", "gvf_ddpg_g095", "ddpg_image", "ddpg_lowdim")
-SCALE = "scale=small"  # the study's recipe unless an override after `--` names another
 TRACE_POINTS = 200  # lane centeredness along a lap, downsampled: the summary stays small
 DRIVE_KEYS = ("lap_completed", "episode_length")  # per road at each evaluation; the means carry the rest
 
@@ -66,7 +65,7 @@ def recipe(variant: str, overrides: list[str]) -> str:
     a resumed study refuses to put summaries of two recipes under one --out."""
     from common.cli import compose_run
 
-    return compose_run([f"agent={variant}", SCALE, *(o for o in overrides if not o.startswith("hydra."))]).scale.name
+    return compose_run([f"agent={variant}", *(o for o in overrides if not o.startswith("hydra."))]).scale.name
 
 
 def _trace(result: dict) -> dict:
@@ -175,8 +174,7 @@ def run_job(
     run_dir.mkdir(parents=True, exist_ok=True)
     cmd = [
         str(BIN / "gvf-train"),
-        f"agent={variant}",
-        SCALE,
+        f"agent={variant}",  # at the root config's scale unless an override after `--` names another
         "actors.count=2",
         "progress=false",
         f"run=study-{variant}-{seed}",
