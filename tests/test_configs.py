@@ -182,7 +182,9 @@ def test_a_resumed_study_refuses_a_job_at_another_recipe_than_its_summary_and_a_
     with pytest.raises(RuntimeError, match="small_g, this job at small_sn: give the study another --out"):
         study.run_job("gvf_ddpg", 0, 15, 500, tmp_path / "runs", tmp_path / "work", ["scale=small_sn"])
     assert study.run_job("gvf_ddpg", 0, 15, 500, tmp_path / "runs", tmp_path / "work", ["scale=small_g"]) == done
-    with pytest.raises(Exception, match="no_such_field"):  # refused before a run is started
+    from hydra.errors import ConfigCompositionException
+
+    with pytest.raises(ConfigCompositionException, match="no_such_field"):  # refused before a run is started
         study.run_job("gvf_ddpg", 1, 15, 500, tmp_path / "runs", tmp_path / "work", ["scale.no_such_field=1"])
     assert ran == []
 
