@@ -154,6 +154,32 @@ def test_short_training_then_eval_and_comparison_of_its_checkpoint_write_tables_
         assert (tmp_path / "results" / f"{name}.png").stat().st_size > 1000
 
 
+def test_staying_good_row_counts_from_the_first_all_lap_evaluation_and_shows_its_updates():
+    from actors.evaluation.compare import staying_good_table
+
+    def evaluation(updates, laps):
+        drives = [{"lap_completed": float(i < laps)} for i in range(12)]
+        return {"updates": updates, "minute": updates / 1000, "mean": {"lap_completed": laps / 12}, "drives": drives}
+
+    last = {
+        "mean": {
+            "lap_completed": 11 / 12,
+            "near_out_of_lane": 0.004,
+            "offcenteredness": 0.05,
+            "jerkiness_angular": 1.38,
+        }
+    }
+    record = {
+        "seed": 4,
+        "progress": {"updates": 2000},
+        "evaluations": [evaluation(500, 3), evaluation(1000, 12), evaluation(1500, 11), evaluation(2000, 5)],
+        "last": {"clean": {**last, "drives": [{}] * 12}},
+    }
+    row = staying_good_table({"gvf_ddpg": [record]})[2]
+    # minute 1.0 and 1,000 updates to all 12; 1 of the 2 later evaluations lapped >= 11; no selected policy
+    assert row == "| gvf_ddpg | 4 | 2000 | 1.0 | 1000 | 11 | 0.004 | 0.050 | 1.380 | 2 | 0.50 | - |"
+
+
 def test_equal_updates_cuts_every_run_at_the_same_update_count():
     from actors.evaluation.equal_updates import at_cut
 

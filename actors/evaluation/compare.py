@@ -81,6 +81,7 @@ def staying_good(record: dict) -> dict:
         "last_laps": round(clean["mean"]["lap_completed"] * len(clean["drives"])) if clean else None,
         "last_near_out_of_lane": clean.get("mean", {}).get("near_out_of_lane"),
         "last_offcenteredness": clean.get("mean", {}).get("offcenteredness"),
+        "last_jerkiness_angular": clean.get("mean", {}).get("jerkiness_angular"),
         "evaluations_after": len(after),
         "after_with_11": sum(x >= n - 1 for x in after),
         "fraction_after_with_11": (sum(x >= n - 1 for x in after) / len(after)) if after else None,
@@ -93,16 +94,18 @@ def staying_good(record: dict) -> dict:
 
 def staying_good_table(per: dict[str, list[dict]]) -> list[str]:
     lines = [
-        "| method | seed | updates | min to all 12 laps | last checkpoint laps | its near-out-of-lane | its mean abs(alpha) | evals after | share >= 11 | validation-selected laps |",
-        "|" + " --- |" * 10,
+        # updates to the first all-12 evaluation as well as minutes: runs made on machines of other speeds compare by updates
+        "| method | seed | updates | min to all 12 laps | updates to all 12 laps | last checkpoint laps | its near-out-of-lane | its mean abs(alpha) | its angular jerkiness | evals after | share >= 11 | validation-selected laps |",
+        "|" + " --- |" * 12,
     ]
     fmt = lambda x, f="{:.2f}": "-" if x is None else f.format(x)  # noqa: E731
     for variant, records in per.items():
         for r in records:
             s = staying_good(r)
             lines.append(
-                f"| {variant} | {s['seed']} | {fmt(s['updates'], '{}')} | {fmt(s['minutes_to_all_laps'], '{:.1f}')} | {fmt(s['last_laps'], '{}')} | "
-                f"{fmt(s['last_near_out_of_lane'], '{:.3f}')} | {fmt(s['last_offcenteredness'], '{:.3f}')} | {s['evaluations_after']} | "
+                f"| {variant} | {s['seed']} | {fmt(s['updates'], '{}')} | {fmt(s['minutes_to_all_laps'], '{:.1f}')} | "
+                f"{fmt(s['updates_to_all_laps'], '{}')} | {fmt(s['last_laps'], '{}')} | {fmt(s['last_near_out_of_lane'], '{:.3f}')} | "
+                f"{fmt(s['last_offcenteredness'], '{:.3f}')} | {fmt(s['last_jerkiness_angular'], '{:.3f}')} | {s['evaluations_after']} | "
                 f"{fmt(s['fraction_after_with_11'])} | {fmt(s['selected_laps'], '{}')} |"
             )
     return lines
