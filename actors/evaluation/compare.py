@@ -72,6 +72,7 @@ def staying_good(record: dict) -> dict:
     after = laps[first + 1 :] if first is not None else []
     last = record.get("last") or {}
     clean = last.get("clean", {})
+    mean = clean.get("mean", {})
     return {
         "seed": record["seed"],
         # a wall-clock budget buys each variant a different number of updates
@@ -79,9 +80,9 @@ def staying_good(record: dict) -> dict:
         "minutes_to_all_laps": evals[first]["minute"] if first is not None else None,
         "updates_to_all_laps": evals[first]["updates"] if first is not None else None,
         "last_laps": round(clean["mean"]["lap_completed"] * len(clean["drives"])) if clean else None,
-        "last_near_out_of_lane": clean.get("mean", {}).get("near_out_of_lane"),
-        "last_offcenteredness": clean.get("mean", {}).get("offcenteredness"),
-        "last_jerkiness_angular": clean.get("mean", {}).get("jerkiness_angular"),
+        "last_near_out_of_lane": mean.get("near_out_of_lane"),
+        "last_offcenteredness": mean.get("offcenteredness"),
+        "last_jerkiness_angular": mean.get("jerkiness_angular"),
         "evaluations_after": len(after),
         "after_with_11": sum(x >= n - 1 for x in after),
         "fraction_after_with_11": (sum(x >= n - 1 for x in after) / len(after)) if after else None,
